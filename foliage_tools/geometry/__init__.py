@@ -1,0 +1,1 @@
+"""Geometry kernels: leaves, voxelization, rays. Pure numpy/numba; no USD."""

@@ -1,0 +1,1 @@
+"""Lighting solvers: pure numerics, no USD or files."""
