@@ -1,0 +1,35 @@
+# The two commands: `make demo` (the main job on the bundled example) and
+# `make test`. Both bootstrap what is missing first (`make setup`).
+VENV    := .venv
+PY      := $(VENV)/bin/python
+FOLIAGE := $(VENV)/bin/foliage
+STAMP   := $(VENV)/.installed
+EXAMPLE := examples/tree_small.usda
+DEMO    := out/demo
+
+.PHONY: setup demo test test-slow bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/bootstrap.sh
+	@scripts/bootstrap.sh
+
+demo: setup
+	@mkdir -p $(DEMO)
+	$(FOLIAGE) inspect $(EXAMPLE)
+	$(FOLIAGE) validate $(EXAMPLE)
+	$(FOLIAGE) density $(EXAMPLE) -o $(DEMO)/tree.density.usda --resolution 64
+	$(FOLIAGE) validate $(DEMO)/tree.density.usda
+	@echo "demo outputs are in $(DEMO)/: tree.density.usda (layer over the example) and tree.density.density.vdb (grids)"
+
+test: setup
+	$(PY) -m pytest -m "not slow" -q
+
+test-slow: setup
+	$(PY) -m pytest -m slow -q
+
+bench: setup
+	$(PY) benchmarks/bench_density.py
+
+clean:
+	rm -rf out .pytest_cache

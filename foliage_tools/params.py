@@ -1,0 +1,44 @@
+"""Parameters of the stages: frozen dataclasses, one docstring per field, checked at construction."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from foliage_tools.errors import UsageError
+
+DENSITY_METHODS = ("area", "subgrid")
+DEFAULT_RESOLUTION = 64
+
+
+@dataclass(frozen=True)
+class DensityParams:
+    """How ``foliage density`` voxelizes each prototype's leaves."""
+
+    voxel_size: float | None = None
+    """Voxel edge length in stage units; exclusive with ``resolution``."""
+    resolution: int | None = None
+    """Voxels along the longest edge of the foliage bounds; exclusive with ``voxel_size``.
+    When neither is given, ``DEFAULT_RESOLUTION``."""
+    method: str = "area"
+    """``area``: exact leaf area per voxel / voxel volume (leaf-area density, 1/stage unit);
+    ``subgrid``: geist2008 sec. 4.2, fraction of the 27 sub-cells a leaf touches (0..1)."""
+    margin_voxels: int = 1
+    """Empty voxels added around the foliage bounds on every side."""
+
+    def __post_init__(self) -> None:
+        if self.voxel_size is not None and self.resolution is not None:
+            raise UsageError("--voxel-size and --resolution cannot be combined; give one of them.")
+        if self.voxel_size is not None and not (math.isfinite(self.voxel_size) and self.voxel_size > 0):
+            raise UsageError(f"--voxel-size must be a positive number, got {self.voxel_size}.")
+        if self.resolution is not None and not (1 <= self.resolution <= 2048):
+            raise UsageError(f"--resolution must be between 1 and 2048 voxels, got {self.resolution}.")
+        if self.method not in DENSITY_METHODS:
+            raise UsageError(f"--method must be one of {', '.join(DENSITY_METHODS)}, got {self.method!r}.")
+        if self.margin_voxels < 0:
+            raise UsageError(f"the margin must be >= 0 voxels, got {self.margin_voxels}.")
+
+    def grid_options(self) -> dict:
+        if self.voxel_size is None and self.resolution is None:
+            return {"resolution": DEFAULT_RESOLUTION}
+        return {"voxel_size": self.voxel_size} if self.voxel_size is not None else {"resolution": self.resolution}

@@ -1,0 +1,1 @@
+"""Stages: read -> compute -> write, atomically. The CLI calls these; they do no parsing or printing."""

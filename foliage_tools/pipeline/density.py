@@ -1,0 +1,155 @@
+"""``foliage density``: per prototype, leaf density and wood fraction on a cropped grid."""
+
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools import __version__
+from foliage_tools.errors import InputError
+from foliage_tools.geometry.voxelize import GridSpec, area_per_voxel, grid_for_bounds, mark_wood_fraction, subgrid_coverage
+from foliage_tools.params import DensityParams
+from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.scene.model import Prototype, Scene
+from foliage_tools.scene.read import read_scene
+from foliage_tools.scene.vdb import Grid
+from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, check_output_path, stage_metadata, write_layer
+
+
+@dataclass(frozen=True)
+class DensityResult:
+    """Density grids of one prototype."""
+
+    grid: GridSpec
+    density: np.ndarray
+    """(nx, ny, nz) float64: leaf-area density (1/stage unit) for ``area``; sub-cell fraction (0..1) for ``subgrid``."""
+    wood_fraction: np.ndarray
+    """(nx, ny, nz) float64 in [0, 1]: wood / (leaf + wood) surface in the voxel."""
+    leaf_area_mesh: float
+    leaf_area_grid: float
+    """Σ density × voxel volume (``area`` method): equals ``leaf_area_mesh`` up to round-off when the grid holds all leaves."""
+    seconds: float
+
+
+def compute_density(proto: Prototype, params: DensityParams) -> DensityResult:
+    """Voxelize one prototype (pure numerics on its arrays)."""
+    t0 = time.perf_counter()
+    leaf = proto.triangles(leaves=True)
+    wood = proto.triangles(leaves=False)
+    lo, hi = proto.bounds(leaves_only=True)
+    grid = grid_for_bounds(lo, hi, margin_voxels=params.margin_voxels, **params.grid_options())
+    if params.method == "area":
+        leaf_area = area_per_voxel(leaf, grid)
+        wood_area = area_per_voxel(wood, grid) if len(wood) else np.zeros(grid.shape)
+        density = leaf_area / grid.voxel_volume
+        wood_fraction = mark_wood_fraction(leaf_area, wood_area)
+    else:
+        # geist2008 sec. 4.2: density = intersected sub-cells / 27
+        density = subgrid_coverage(leaf, grid).astype(np.float64)
+        wood_cov = subgrid_coverage(wood, grid).astype(np.float64) if len(wood) else np.zeros(grid.shape)
+        wood_fraction = mark_wood_fraction(density, wood_cov)
+    mesh_area = float(proto.leaves.areas.sum())
+    grid_area = float(density.sum() * grid.voxel_volume) if params.method == "area" else float("nan")
+    return DensityResult(grid, density, wood_fraction, mesh_area, grid_area, time.perf_counter() - t0)
+
+
+def volume_path(proto: Prototype) -> str:
+    """Where a prototype's FoliageLighting volume goes (DESIGN.md section 3).
+
+    Native-instance prototypes live in a referenced layer whose prims cannot
+    take overs, so their volume goes under ``/FoliageBakes/<name>`` in
+    prototype space.
+    """
+    if proto.editable:
+        return f"{proto.path}/FoliageLighting"
+    return f"/FoliageBakes/{re.sub(r'[^A-Za-z0-9_]', '_', proto.name)}/FoliageLighting"
+
+
+def vdb_path(out: Path, scene: Scene, index: int, stage: str) -> Path:
+    if len(scene.prototypes) == 1:
+        return out.with_name(f"{out.stem}.{stage}.vdb")
+    name = re.sub(r"[^A-Za-z0-9_]", "_", scene.prototypes[index].name)
+    return out.with_name(f"{out.stem}.{stage}.{index:02d}_{name}.vdb")
+
+
+def require_leaves(scene: Scene, path: Path) -> None:
+    if not scene.prototypes:
+        raise InputError(f"@{path}@ has no mesh geometry to bake; is it a tree asset?")
+    if not any(p.leaves.count for p in scene.prototypes):
+        meshes = ", ".join(f"<{m.path}>" for p in scene.prototypes for m in p.meshes[:5])
+        raise InputError(
+            f"@{path}@: no leaves found (meshes: {meshes}). Mark leaf meshes with FoliageLeafAPI or "
+            "primvars:foliage:isLeaf = true, or name them or their material leaf/leaves/foliage/needle."
+        )
+
+
+def leaf_id_edits(scene: Scene, warnings: list[str]) -> list[PrimvarEdit]:
+    edits = []
+    for proto in scene.prototypes:
+        if not proto.editable and proto.leaves.count:
+            warnings.append(
+                f"prototype <{proto.path}> is a native instance: primvars:foliage:leafId cannot be authored on its "
+                "meshes (they live in a referenced layer); its grids are under /FoliageBakes."
+            )
+            continue
+        for mesh, ids in zip(proto.meshes, proto.leaves.face_leaf_ids):
+            if mesh.is_leaf:
+                edits.append(PrimvarEdit(prim=mesh.path, name="foliage:leafId", values=ids, type="int"))
+    return edits
+
+
+def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progress | None = None) -> Report:
+    progress = progress or Silent()
+    report = Report(command="density", inputs=[str(path)])
+    check_output_path(path, out)
+    progress.step(f"reading {path}")
+    scene, warnings = read_scene(path)
+    report.warnings.extend(warnings)
+    require_leaves(scene, path)
+    edits = LayerEdits(primvars=leaf_id_edits(scene, report.warnings))
+    protos = []
+    baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
+    progress.step(f"voxelizing {len(baked)} prototype(s) ({params.method})", total=len(baked))
+    for i, proto in baked:
+        res = compute_density(proto, params)
+        progress.advance()
+        meta = {
+            "foliage:method": "density",
+            "foliage:densityMethod": params.method,
+            "foliage:voxelSize": float(res.grid.voxel_size),
+            "foliage:resolution": tuple(int(n) for n in res.grid.shape),
+            "foliage:metersPerUnit": float(scene.meters_per_unit),
+            "foliage:seconds": float(res.seconds),
+            "foliage:version": __version__,
+        }
+        units = "1/stage_unit (leaf area density)" if params.method == "area" else "fraction of 27 sub-cells"
+        grid_meta = {"units": units, "densityMethod": params.method, "metersPerUnit": float(scene.meters_per_unit)}
+        grids = (
+            Grid("density", res.density.astype(np.float32), tuple(res.grid.origin), res.grid.voxel_size, grid_meta),
+            Grid("woodFraction", res.wood_fraction.astype(np.float32), tuple(res.grid.origin), res.grid.voxel_size, {"units": "fraction"}),
+        )
+        edits.volumes.append(VolumeEdit(path=volume_path(proto), vdb_file=vdb_path(out, scene, i, "density"), grids=grids, attributes=meta))
+        rel_err = abs(res.leaf_area_grid - res.leaf_area_mesh) / res.leaf_area_mesh if params.method == "area" else None
+        protos.append(
+            {
+                "path": proto.path,
+                "volume": volume_path(proto),
+                "leaves": proto.leaves.count,
+                "shape": list(res.grid.shape),
+                "voxel_size": res.grid.voxel_size,
+                "origin": list(res.grid.origin),
+                "active_voxels": int(np.count_nonzero(res.density)),
+                "leaf_area_mesh": res.leaf_area_mesh,
+                "leaf_area_grid": None if rel_err is None else res.leaf_area_grid,
+                "area_rel_error": rel_err,
+                "seconds": res.seconds,
+            }
+        )
+    progress.step(f"writing {out}")
+    report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
+    report.stats = {"method": params.method, "prototypes": protos}
+    return report.finish()

@@ -1,0 +1,55 @@
+"""The report every command returns, and the progress interface stages talk to.
+
+``Report.as_json()`` is the ``--json`` object of DESIGN.md section 3:
+``command``, ``version``, ``inputs``, ``outputs``, ``seconds``, ``warnings``
+and per-command ``stats`` (schema: ``schemas/json/report.schema.json``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from foliage_tools import __version__
+
+
+class Progress(Protocol):
+    """What a long stage tells the user. The CLI shows it with rich; tests pass :class:`Silent`."""
+
+    def step(self, message: str, total: int | None = None) -> None: ...
+    def advance(self, n: int = 1) -> None: ...
+
+
+class Silent:
+    def step(self, message: str, total: int | None = None) -> None:
+        pass
+
+    def advance(self, n: int = 1) -> None:
+        pass
+
+
+@dataclass
+class Report:
+    command: str
+    inputs: list[str]
+    outputs: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    stats: dict[str, Any] = field(default_factory=dict)
+    started: float = field(default_factory=time.perf_counter)
+    seconds: float = 0.0
+
+    def finish(self) -> "Report":
+        self.seconds = time.perf_counter() - self.started
+        return self
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "command": self.command,
+            "version": __version__,
+            "inputs": self.inputs,
+            "outputs": self.outputs,
+            "seconds": round(self.seconds, 6),
+            "warnings": self.warnings,
+            "stats": self.stats,
+        }

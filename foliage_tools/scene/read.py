@@ -1,0 +1,326 @@
+"""Stage -> :class:`~foliage_tools.scene.model.Scene`.
+
+Each unique prototype is read once: native instanceable references share their
+USD prototype, point-instancer prototypes are read per prototype target, and
+plain geometry is grouped by tree root (the nearest ``component`` model, else
+the top-level prim). Invisible prims and ``guide``/``proxy`` purposes are
+skipped. Geometry stays in the stage's units and axes.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools.errors import InputError
+from foliage_tools.geometry.leaves import face_values_from_triangles, leaf_components, triangulate
+from foliage_tools.scene.model import Instance, Leaves, Light, MeshPart, Prototype, Scene
+from foliage_tools.scene.schemas import LEAF_API, register
+
+register()
+
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade  # noqa: E402  (schemas must be registered first)
+
+LEAF_NAME = re.compile(r"leaf|leaves|foliage|needle", re.IGNORECASE)
+SKIPPED_PURPOSES = (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)
+
+
+def open_stage(path: str | os.PathLike) -> Usd.Stage:
+    """Open a USD file, turning every failure into an :class:`InputError` naming the file."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"@{p}@: no such file. Check the path.")
+    if p.is_dir():
+        raise InputError(f"@{p}@ is a directory; give a USD file (.usd, .usda, .usdc, .usdz).")
+    if not Sdf.FileFormat.FindByExtension(p.suffix.lstrip(".") or "none"):
+        raise InputError(f"@{p}@: not a USD file (extension {p.suffix or 'none'!r}); give a .usd, .usda, .usdc or .usdz file.")
+    try:
+        stage = Usd.Stage.Open(str(p), Usd.Stage.LoadAll)
+    except Tf.ErrorException as exc:
+        first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unknown error"
+        raise InputError(f"@{p}@: cannot be opened as USD ({first}). Is it a valid USD file?") from None
+    if stage is None:
+        raise InputError(f"@{p}@: cannot be opened as USD. Is it a valid USD file?")
+    return stage
+
+
+def _matrix(m: Gf.Matrix4d) -> np.ndarray:
+    """USD's row-vector matrix -> column-vector numpy matrix."""
+    return np.array(m, dtype=np.float64).T
+
+
+def _transform_points(points: np.ndarray, m: np.ndarray) -> np.ndarray:
+    return points @ m[:3, :3].T + m[:3, 3]
+
+
+def classify_leaf(prim: Usd.Prim) -> tuple[bool, str]:
+    """DESIGN.md section 3: FoliageLeafAPI; primvars:foliage:isLeaf; material or prim name; else wood."""
+    if prim.HasAPI(LEAF_API):
+        return True, "FoliageLeafAPI"
+    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("foliage:isLeaf")
+    if pv and pv.HasAuthoredValue():
+        value = pv.Get()
+        if value is not None:
+            flag = bool(np.asarray(value).reshape(-1)[0]) if np.ndim(value) else bool(value)
+            return flag, "isLeaf primvar"
+    material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+    if material and LEAF_NAME.search(material.GetPrim().GetName()):
+        return True, "material"
+    if LEAF_NAME.search(prim.GetName()):
+        return True, "name"
+    return False, "default"
+
+
+def _is_skipped(prim: Usd.Prim) -> bool:
+    img = UsdGeom.Imageable(prim)
+    if not img:
+        return False
+    if img.ComputeVisibility() == UsdGeom.Tokens.invisible:
+        return True
+    return img.ComputePurpose() in SKIPPED_PURPOSES
+
+
+@dataclass
+class _Reader:
+    stage: Usd.Stage
+    path: str
+    xf: UsdGeom.XformCache = field(default_factory=UsdGeom.XformCache)
+    prototypes: list[Prototype] = field(default_factory=list)
+    instances: list[Instance] = field(default_factory=list)
+    lights: list[Light] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    keys: dict[tuple[str, str], int] = field(default_factory=dict)
+
+    # -- meshes -----------------------------------------------------------
+    def read_mesh(self, prim: Usd.Prim, to_proto: np.ndarray, *, editable: bool) -> MeshPart | None:
+        mesh = UsdGeom.Mesh(prim)
+        pts = mesh.GetPointsAttr().Get()
+        counts = mesh.GetFaceVertexCountsAttr().Get()
+        idx = mesh.GetFaceVertexIndicesAttr().Get()
+        if pts is None or counts is None or idx is None or len(pts) == 0 or len(counts) == 0:
+            self.warnings.append(f"{self.path}: mesh <{prim.GetPath()}> has no points or faces; skipped.")
+            return None
+        points = np.asarray(pts, dtype=np.float64)
+        if not np.all(np.isfinite(points)):
+            bad = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
+            raise InputError(
+                f"@{self.path}@: mesh <{prim.GetPath()}> has {bad} point(s) with NaN or infinite coordinates; "
+                "fix the asset (e.g. re-export it) before baking."
+            )
+        counts = np.asarray(counts, dtype=np.int64)
+        idx = np.asarray(idx, dtype=np.int64)
+        if counts.sum() != idx.shape[0] or (idx.size and (idx.min() < 0 or idx.max() >= points.shape[0])):
+            raise InputError(
+                f"@{self.path}@: mesh <{prim.GetPath()}> has inconsistent topology (faceVertexCounts sum "
+                f"{int(counts.sum())}, {idx.shape[0]} indices, {points.shape[0]} points); fix the asset."
+            )
+        tris, face_of_tri = triangulate(counts, idx)
+        is_leaf, reason = classify_leaf(prim)
+        return MeshPart(
+            path=str(prim.GetPath()),
+            points=_transform_points(points, to_proto),
+            triangles=tris,
+            face_of_triangle=face_of_tri,
+            face_count=int(counts.shape[0]),
+            is_leaf=is_leaf,
+            leaf_reason=reason,
+            editable=editable,
+        )
+
+    def read_prototype(self, root: Usd.Prim, *, path: str, kind: str, root_xform: np.ndarray, mesh_prims=None) -> int:
+        """Read the meshes under ``root`` into a Prototype; return its index."""
+        editable = kind != "instance"
+        if mesh_prims is None:
+            mesh_prims = []
+            it = iter(Usd.PrimRange(root))
+            for prim in it:
+                if _is_skipped(prim):
+                    it.PruneChildren()
+                    continue
+                if prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer):
+                    self.warnings.append(
+                        f"{self.path}: nested instancing at <{prim.GetPath()}> inside prototype <{root.GetPath()}> is not read."
+                    )
+                    it.PruneChildren()
+                    continue
+                if prim.IsA(UsdGeom.Mesh):
+                    mesh_prims.append(prim)
+        inv_root = np.linalg.inv(_matrix(self.xf.GetLocalToWorldTransform(root))) if kind == "prim" else None
+        parts = []
+        for prim in mesh_prims:
+            if kind == "prim":
+                to_proto = inv_root @ _matrix(self.xf.GetLocalToWorldTransform(prim))
+            else:
+                rel, _ = self.xf.ComputeRelativeTransform(prim, root)
+                to_proto = root_xform @ _matrix(rel)
+            part = self.read_mesh(prim, to_proto, editable=editable)
+            if part is not None:
+                parts.append(part)
+        leaves, degenerate = _leaves(parts)
+        name = Path(path).name or "root"
+        self.prototypes.append(
+            Prototype(path=path, name=name, meshes=tuple(parts), leaves=leaves, kind=kind, degenerate_triangles=degenerate)
+        )
+        return len(self.prototypes) - 1
+
+    # -- traversal ----------------------------------------------------------
+    def tree_root(self, prim: Usd.Prim) -> Usd.Prim:
+        top = prim
+        p = prim
+        while p and not p.IsPseudoRoot():
+            if Usd.ModelAPI(p).GetKind() == "component":
+                return p
+            top = p
+            p = p.GetParent()
+        return top
+
+    def run(self) -> Scene:
+        plain: dict[str, list[Usd.Prim]] = {}
+        it = iter(Usd.PrimRange(self.stage.GetPseudoRoot()))
+        next(it)  # the pseudo-root
+        for prim in it:
+            if _is_skipped(prim):
+                it.PruneChildren()
+                continue
+            if prim.IsA(UsdGeom.PointInstancer):
+                self.point_instancer(UsdGeom.PointInstancer(prim))
+                it.PruneChildren()
+            elif prim.IsInstance():
+                self.native_instance(prim)
+                it.PruneChildren()
+            elif prim.IsA(UsdGeom.Mesh):
+                plain.setdefault(str(self.tree_root(prim).GetPath()), []).append(prim)
+            elif prim.IsA(UsdLux.DistantLight) or prim.IsA(UsdLux.DomeLight):
+                self.light(prim)
+        for root_path, meshes in plain.items():
+            root = self.stage.GetPrimAtPath(root_path)
+            k = self.read_prototype(root, path=root_path, kind="prim", root_xform=np.eye(4), mesh_prims=meshes)
+            m = _matrix(self.xf.GetLocalToWorldTransform(root))
+            self.instances.append(Instance(prototype=k, path=root_path, transform=m))
+        up = UsdGeom.GetStageUpAxis(self.stage)
+        mpu = float(UsdGeom.GetStageMetersPerUnit(self.stage))
+        dp = self.stage.GetDefaultPrim()
+        return Scene(
+            path=self.path,
+            up_axis=str(up),
+            meters_per_unit=mpu,
+            prototypes=tuple(self.prototypes),
+            instances=tuple(self.instances),
+            lights=tuple(self.lights),
+            default_prim=str(dp.GetPath()) if dp else None,
+        )
+
+    def native_instance(self, prim: Usd.Prim) -> None:
+        proto = prim.GetPrototype()
+        key = ("instance", str(proto.GetPath()))
+        if key not in self.keys:
+            self.keys[key] = self.read_prototype(proto, path=str(prim.GetPath()), kind="instance", root_xform=np.eye(4))
+        self.instances.append(
+            Instance(prototype=self.keys[key], path=str(prim.GetPath()), transform=_matrix(self.xf.GetLocalToWorldTransform(prim)))
+        )
+
+    def point_instancer(self, pi: UsdGeom.PointInstancer) -> None:
+        prim = pi.GetPrim()
+        targets = pi.GetPrototypesRel().GetTargets()
+        t = Usd.TimeCode.Default()
+        # IgnoreMask keeps the transforms aligned with protoIndices (DESIGN.md section 5); mask applied below.
+        xforms = pi.ComputeInstanceTransformsAtTime(
+            t, t, UsdGeom.PointInstancer.IncludeProtoXform, UsdGeom.PointInstancer.IgnoreMask
+        )
+        proto_indices = pi.GetProtoIndicesAttr().Get(t)
+        if proto_indices is None or xforms is None:
+            self.warnings.append(f"{self.path}: point instancer <{prim.GetPath()}> has no protoIndices; skipped.")
+            return
+        proto_indices = np.asarray(proto_indices, dtype=np.int64)
+        mask = np.asarray(pi.ComputeMaskAtTime(t) or [True] * len(proto_indices), dtype=bool)
+        world = _matrix(self.xf.GetLocalToWorldTransform(prim))
+        proto_ids: dict[int, int] = {}
+        for j, target in enumerate(targets):
+            p = self.stage.GetPrimAtPath(target)
+            if not p:
+                raise InputError(f"@{self.path}@: point instancer <{prim.GetPath()}> names a missing prototype <{target}>.")
+            key = ("pointinstancer", str(target))
+            if key not in self.keys:
+                src = p.GetPrototype() if p.IsInstance() else p
+                # with IncludeProtoXform the prototype root's own transform is in `xforms`;
+                # geometry is then read relative to the root.
+                self.keys[key] = self.read_prototype(src, path=str(target), kind="pointinstancer", root_xform=np.eye(4))
+            proto_ids[j] = self.keys[key]
+        for i, (pidx, xf) in enumerate(zip(proto_indices, xforms)):
+            if not mask[i] or int(pidx) not in proto_ids:
+                continue
+            m = world @ _matrix(xf)
+            self.instances.append(Instance(prototype=proto_ids[int(pidx)], path=f"{prim.GetPath()}[{i}]", transform=m))
+
+    def light(self, prim: Usd.Prim) -> None:
+        m = _matrix(self.xf.GetLocalToWorldTransform(prim))
+        light = UsdLux.LightAPI(prim)
+        intensity = float(light.GetIntensityAttr().Get() or 0.0)
+        color = tuple(float(c) for c in (light.GetColorAttr().Get() or (1.0, 1.0, 1.0)))
+        if prim.IsA(UsdLux.DistantLight):
+            d = m[:3, 2]  # the light travels along its -Z axis, so +Z points toward the sun
+            kind = "distant"
+        else:
+            up = UsdGeom.GetStageUpAxis(self.stage)
+            d = np.array([0.0, 1.0, 0.0]) if up == "Y" else np.array([0.0, 0.0, 1.0])
+            kind = "dome"
+        n = np.linalg.norm(d)
+        self.lights.append(Light(path=str(prim.GetPath()), kind=kind, direction=d / n if n else d, intensity=intensity, color=color))
+
+
+def _leaves(parts: list[MeshPart]) -> tuple[Leaves, int]:
+    centers, normals, areas, mesh_index, face_ids = [], [], [], [], []
+    offset = 0
+    degenerate = 0
+    for i, part in enumerate(parts):
+        if not part.is_leaf:
+            face_ids.append(np.full(part.face_count, -1, dtype=np.int64))
+            continue
+        comp = leaf_components(part.points, part.triangles)
+        degenerate += comp.degenerate
+        tri_leaf = np.where(comp.triangle_leaf >= 0, comp.triangle_leaf + offset, -1)
+        face_ids.append(face_values_from_triangles(part.face_of_triangle, tri_leaf, part.face_count))
+        centers.append(comp.centers)
+        normals.append(comp.normals)
+        areas.append(comp.areas)
+        mesh_index.append(np.full(comp.areas.shape[0], i, dtype=np.int64))
+        offset += comp.areas.shape[0]
+    if centers:
+        leaves = Leaves(
+            np.concatenate(centers), np.concatenate(normals), np.concatenate(areas), np.concatenate(mesh_index), tuple(face_ids)
+        )
+    else:
+        z = np.zeros((0, 3))
+        leaves = Leaves(z, z, np.zeros(0), np.zeros(0, dtype=np.int64), tuple(face_ids))
+    return leaves, degenerate
+
+
+def read_scene(path: str | os.PathLike) -> tuple[Scene, list[str]]:
+    """Read a USD file into a :class:`Scene`.
+
+    Returns
+    -------
+    scene : Scene
+    warnings : list of str
+        Things skipped or suspicious, for the command's report.
+
+    Raises
+    ------
+    InputError
+        Missing file, not USD, an empty stage, NaN points, broken topology.
+    """
+    stage = open_stage(path)
+    if not any(True for _ in stage.GetPseudoRoot().GetChildren()):
+        raise InputError(f"@{path}@: the stage is empty (no prims). Is this the right file?")
+    reader = _Reader(stage=stage, path=str(path))
+    scene = reader.run()
+    for proto in scene.prototypes:
+        if proto.degenerate_triangles:
+            reader.warnings.append(
+                f"{path}: prototype <{proto.path}> has {proto.degenerate_triangles} degenerate (zero-area) leaf triangle(s); they were ignored."
+            )
+    return scene, reader.warnings

@@ -1,0 +1,231 @@
+"""``foliage validate``: USD's own validators plus the foliage rules.
+
+Each rule is a small function with a one-line description that *collects*
+:class:`Finding` objects instead of raising (after usdchecker). Messages use
+USD's notation: prim paths in ``<...>``, asset paths in ``@...@``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from foliage_tools.errors import InputError
+from foliage_tools.geometry.leaves import DEGENERATE_AREA, triangle_area_normals, triangulate
+from foliage_tools.scene.read import classify_leaf, open_stage
+from foliage_tools.scene.schemas import register
+from foliage_tools.scene.vdb import grid_names, read_grid
+
+register()
+
+from pxr import Sdf, Usd, UsdGeom, UsdValidation, UsdVol  # noqa: E402
+
+ERROR = "error"
+WARNING = "warning"
+
+#: The built-in UsdValidation validators that apply to tree assets (physics,
+#: skeleton and usdz-packaging validators do not).
+USD_VALIDATORS = (
+    "usdValidation:CompositionErrorTest",
+    "usdValidation:StageMetadataChecker",
+    "usdValidation:AttributeTypeMismatch",
+    "usdGeomValidators:StageMetadataChecker",
+    "usdGeomValidators:EncapsulationChecker",
+    "usdGeomValidators:SubsetFamilies",
+    "usdGeomValidators:SubsetParentIsImageable",
+    "usdShadeValidators:MaterialBindingApiAppliedValidator",
+    "usdShadeValidators:MaterialBindingRelationships",
+    "usdShadeValidators:EncapsulationRulesValidator",
+    "usdShadeValidators:ShaderSdrCompliance",
+    "usdLuxValidators:EncapsulationRulesValidator",
+    "usdUtilsValidators:MissingReferenceValidator",
+)
+
+
+@dataclass(frozen=True)
+class Finding:
+    severity: str
+    rule: str
+    message: str
+    prim: str = ""
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+Rule = Callable[[Usd.Stage, str], Iterator[Finding]]
+RULES: list[tuple[str, str, Rule]] = []
+
+
+def rule(name: str, doc: str):
+    def deco(fn: Rule) -> Rule:
+        RULES.append((name, doc, fn))
+        return fn
+
+    return deco
+
+
+def _meshes(stage: Usd.Stage) -> Iterator[Usd.Prim]:
+    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()):
+        if prim.IsA(UsdGeom.Mesh):
+            yield prim
+
+
+@rule("leaf-meshes-found", "The stage holds at least one leaf mesh (DESIGN.md leaf rule).")
+def _leaf_meshes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    meshes = list(_meshes(stage))
+    if not meshes:
+        yield Finding(ERROR, "leaf-meshes-found", f"@{path}@ has no meshes; foliage bakes need leaf geometry.")
+    elif not any(classify_leaf(m)[0] for m in meshes):
+        yield Finding(
+            ERROR,
+            "leaf-meshes-found",
+            f"@{path}@: none of its {len(meshes)} meshes is a leaf mesh. Apply FoliageLeafAPI, set "
+            "primvars:foliage:isLeaf = true, or name the mesh or its material leaf/leaves/foliage/needle.",
+        )
+
+
+@rule("finite-geometry", "Mesh points are finite and faces index valid points.")
+def _finite(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in _meshes(stage):
+        mesh = UsdGeom.Mesh(prim)
+        pts = mesh.GetPointsAttr().Get()
+        if pts is None:
+            continue
+        p = np.asarray(pts, dtype=np.float64)
+        bad = int(np.count_nonzero(~np.isfinite(p).all(axis=1))) if p.size else 0
+        if bad:
+            yield Finding(ERROR, "finite-geometry", f"<{prim.GetPath()}> has {bad} point(s) with NaN or infinite coordinates.", str(prim.GetPath()))
+        counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
+        idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
+        if counts.sum() != idx.shape[0]:
+            yield Finding(ERROR, "finite-geometry", f"<{prim.GetPath()}>: faceVertexCounts sum to {int(counts.sum())} but there are {idx.shape[0]} faceVertexIndices.", str(prim.GetPath()))
+        elif idx.size and (idx.min() < 0 or idx.max() >= p.shape[0]):
+            yield Finding(ERROR, "finite-geometry", f"<{prim.GetPath()}>: faceVertexIndices reach outside its {p.shape[0]} points.", str(prim.GetPath()))
+        elif np.any(counts < 3):
+            yield Finding(ERROR, "finite-geometry", f"<{prim.GetPath()}> has {int(np.count_nonzero(counts < 3))} face(s) with fewer than 3 vertices.", str(prim.GetPath()))
+
+
+@rule("degenerate-geometry", "No zero-area triangles (they carry no leaf area and break normals).")
+def _degenerate(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in _meshes(stage):
+        mesh = UsdGeom.Mesh(prim)
+        pts = mesh.GetPointsAttr().Get()
+        counts = mesh.GetFaceVertexCountsAttr().Get()
+        idx = mesh.GetFaceVertexIndicesAttr().Get()
+        if pts is None or counts is None or idx is None or len(pts) == 0:
+            continue
+        p = np.asarray(pts, dtype=np.float64)
+        counts = np.asarray(counts, dtype=np.int64)
+        idx = np.asarray(idx, dtype=np.int64)
+        if not np.isfinite(p).all() or counts.sum() != idx.shape[0] or idx.max() >= p.shape[0] or idx.min() < 0:
+            continue  # reported by finite-geometry
+        tris, _ = triangulate(counts, idx)
+        area, _ = triangle_area_normals(p, tris)
+        diag = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0))) or 1.0
+        n = int(np.count_nonzero(area <= DEGENERATE_AREA * diag * diag))
+        if n:
+            yield Finding(WARNING, "degenerate-geometry", f"<{prim.GetPath()}> has {n} degenerate (zero-area) triangle(s); bakes ignore them.", str(prim.GetPath()))
+
+
+def _expected_length(mesh: UsdGeom.Mesh, interpolation: str) -> int | None:
+    if interpolation == UsdGeom.Tokens.constant:
+        return 1
+    if interpolation == UsdGeom.Tokens.uniform:
+        counts = mesh.GetFaceVertexCountsAttr().Get()
+        return len(counts) if counts is not None else None
+    if interpolation in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
+        pts = mesh.GetPointsAttr().Get()
+        return len(pts) if pts is not None else None
+    if interpolation == UsdGeom.Tokens.faceVarying:
+        idx = mesh.GetFaceVertexIndicesAttr().Get()
+        return len(idx) if idx is not None else None
+    return None
+
+
+@rule("primvar-lengths", "Primvar lengths match their interpolation (times elementSize).")
+def _primvar_lengths(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in _meshes(stage):
+        mesh = UsdGeom.Mesh(prim)
+        for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvarsWithAuthoredValues():
+            value = pv.Get()
+            if value is None or not hasattr(value, "__len__") or isinstance(value, str):
+                continue
+            expected = _expected_length(mesh, pv.GetInterpolation())
+            if expected is None:
+                continue
+            es = max(pv.GetElementSize(), 1)
+            if pv.IsIndexed():
+                n = len(pv.GetIndices())
+                indices = np.asarray(pv.GetIndices())
+                if indices.size and (indices.min() < 0 or indices.max() >= len(value)):
+                    yield Finding(ERROR, "primvar-lengths", f"<{prim.GetPath()}>.{pv.GetName()}: indices reach outside its {len(value)} values.", str(prim.GetPath()))
+            else:
+                n = len(value)
+            if n != expected * es:
+                yield Finding(
+                    ERROR,
+                    "primvar-lengths",
+                    f"<{prim.GetPath()}>.{pv.GetName()}: {n} values for {pv.GetInterpolation()} interpolation "
+                    f"(elementSize {es}) but the mesh needs {expected * es}.",
+                    str(prim.GetPath()),
+                )
+
+
+@rule("volume-grids", "Referenced .vdb files exist and hold the named grids with finite values.")
+def _volume_grids(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()):
+        if not prim.IsA(UsdVol.OpenVDBAsset):
+            continue
+        asset = UsdVol.OpenVDBAsset(prim)
+        file_attr = asset.GetFilePathAttr()
+        ap = file_attr.Get()
+        name = asset.GetFieldNameAttr().Get()
+        if ap is None or not ap.path:
+            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}> has no filePath.", str(prim.GetPath()))
+            continue
+        resolved = ap.resolvedPath or ""
+        if not resolved or not Path(resolved).is_file():
+            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: @{ap.path}@ does not exist. Re-run the bake that wrote it.", str(prim.GetPath()))
+            continue
+        try:
+            names = grid_names(Path(resolved))
+        except InputError as exc:
+            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: {exc}", str(prim.GetPath()))
+            continue
+        if name not in names:
+            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: @{ap.path}@ has no grid {name!r} (it has {', '.join(names) or 'none'}).", str(prim.GetPath()))
+            continue
+        grid = read_grid(Path(resolved), name)
+        if not np.all(np.isfinite(grid.values)):
+            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: grid {name!r} in @{ap.path}@ holds NaN or infinite values.", str(prim.GetPath()))
+
+
+def _usd_findings(stage: Usd.Stage) -> Iterator[Finding]:
+    reg = UsdValidation.ValidationRegistry()
+    names = [n for n in USD_VALIDATORS if reg.HasValidator(n)]
+    ctx = UsdValidation.ValidationContext(reg.GetOrLoadValidatorsByName(names))
+    for err in ctx.Validate(stage):
+        if err.HasNoError():
+            continue
+        sites = [str(s.GetPrim().GetPath()) for s in err.GetSites() if s.IsPrim()]
+        severity = ERROR if err.GetType() == UsdValidation.ValidationErrorType.Error else WARNING
+        validator = err.GetValidator()
+        rule_name = validator.GetMetadata().name if validator else err.GetName()
+        yield Finding(severity, rule_name, err.GetMessage(), sites[0] if sites else "")
+
+
+def validate(path: str | Path) -> list[Finding]:
+    """All findings for the stage at ``path`` (raises :class:`InputError` if it cannot be opened)."""
+    stage = open_stage(path)
+    findings = list(_usd_findings(stage))
+    for _, _, fn in RULES:
+        findings.extend(fn(stage, str(path)))
+    return findings
+
+
+def rule_docs() -> list[tuple[str, str]]:
+    return [(name, doc) for name, doc, _ in RULES] + [(n, "USD built-in validator") for n in USD_VALIDATORS]

@@ -1,0 +1,111 @@
+"""OpenVDB grids <-> numpy arrays, through Debian's ``pyopenvdb``.
+
+Index space: OpenVDB puts voxel *centres* at integer coordinates, so the
+voxel (i, j, k) of a grid whose min corner is ``origin`` has its centre at
+``origin + (ijk + 0.5) * voxel_size``. Inactive voxels read back as the
+background (0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools.errors import InputError
+
+try:
+    import pyopenvdb as _vdb
+except ImportError as exc:  # pragma: no cover - environment problem, reported clearly
+    raise ImportError(
+        "pyopenvdb is missing: install Debian's python3-openvdb and make the venv with "
+        "--system-site-packages (`make setup` does both)."
+    ) from exc
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A dense array on an axis-aligned voxel grid, with metadata."""
+
+    name: str
+    values: np.ndarray
+    """(nx, ny, nz) float32 scalar or (nx, ny, nz, 3) float32 vector values."""
+    origin: tuple[float, float, float]
+    """World position of the min corner of voxel (0, 0, 0), stage units."""
+    voxel_size: float
+    metadata: dict = field(default_factory=dict)
+
+    @property
+    def data_type(self) -> str:
+        """USD ``fieldDataType`` token."""
+        return "float3" if self.values.ndim == 4 else "float"
+
+
+def _index_to_world(origin, h: float) -> list[list[float]]:
+    # OpenVDB's matrices use the row-vector convention: translation in the last row.
+    o = np.asarray(origin, dtype=np.float64) + 0.5 * h
+    return [[h, 0, 0, 0], [0, h, 0, 0], [0, 0, h, 0], [float(o[0]), float(o[1]), float(o[2]), 1.0]]
+
+
+def to_vdb(grid: Grid):
+    values = np.ascontiguousarray(grid.values, dtype=np.float32)
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"grid {grid.name!r} holds NaN or infinite values; refusing to write it")
+    if values.ndim == 4:
+        g = _vdb.Vec3SGrid()
+        g.copyFromArray(values, ijk=(0, 0, 0), tolerance=(0.0, 0.0, 0.0))
+    else:
+        g = _vdb.FloatGrid()
+        g.copyFromArray(values, ijk=(0, 0, 0), tolerance=0.0)
+    g.transform = _vdb.createLinearTransform(_index_to_world(grid.origin, grid.voxel_size))
+    g.name = grid.name
+    g.gridClass = _vdb.GridClass.FOG_VOLUME
+    for key, value in grid.metadata.items():
+        g[key] = value
+    return g
+
+
+def write_vdb(path: Path, grids: list[Grid], *, metadata: dict | None = None) -> None:
+    """Write grids to ``path`` (not atomic by itself: pass a temporary path)."""
+    names = [g.name for g in grids]
+    if len(set(names)) != len(names):
+        raise ValueError(f"grid names must be unique within a file, got {names}")
+    _vdb.write(str(path), grids=[to_vdb(g) for g in grids], metadata=dict(metadata or {}))
+
+
+def grid_names(path: Path) -> list[str]:
+    """Names of the grids in a ``.vdb`` file; :class:`InputError` if it is missing or unreadable."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"@{path}@: no such OpenVDB file.")
+    try:
+        return [g.name for g in _vdb.readAllGridMetadata(str(path))]
+    except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
+        raise InputError(f"@{path}@: not a readable OpenVDB file ({exc}).") from None
+
+
+def read_grid(path: Path, name: str) -> Grid:
+    """Read one grid as a dense array over its active bounding box."""
+    path = Path(path)
+    if name not in grid_names(path):
+        raise InputError(f"@{path}@ has no grid named {name!r}.")
+    try:
+        g = _vdb.read(str(path), name)
+    except Exception as exc:
+        raise InputError(f"@{path}@: grid {name!r} cannot be read ({exc}).") from None
+    lo, hi = g.evalActiveVoxelBoundingBox()
+    if g.activeVoxelCount() == 0:
+        lo, hi = (0, 0, 0), (0, 0, 0)
+    shape = tuple(int(b - a + 1) for a, b in zip(lo, hi))
+    if isinstance(g, _vdb.Vec3SGrid):
+        arr = np.zeros(shape + (3,), dtype=np.float32)
+    else:
+        arr = np.zeros(shape, dtype=np.float32)
+    g.copyToArray(arr, ijk=lo)
+    w0 = np.array(g.transform.indexToWorld(lo))
+    w1 = np.array(g.transform.indexToWorld((lo[0] + 1, lo[1], lo[2])))
+    h = float(np.linalg.norm(w1 - w0))
+    origin = tuple(float(x) for x in (w0 - 0.5 * h))
+    meta = {k: v for k, v in g.metadata.items() if not k.startswith("file_")}
+    return Grid(name=name, values=arr, origin=origin, voxel_size=h, metadata=meta)

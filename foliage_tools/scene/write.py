@@ -1,0 +1,166 @@
+"""Write a stage's results: an output layer that sublayers the input, plus ``.vdb`` grids.
+
+The layer holds only what the stage computed (overs for primvars, new
+``FoliageLighting`` volumes), copies the input's ``upAxis``,
+``metersPerUnit`` and ``defaultPrim`` (stage metadata is read from the root
+layer only), and refers to the input and the grids by relative paths. All
+files of a stage are written atomically together.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools.errors import OutputError
+from foliage_tools.scene.atomic import atomic_outputs, check_writable
+from foliage_tools.scene.schemas import LIGHTING_API, register
+from foliage_tools.scene.vdb import Grid, write_vdb
+
+register()
+
+from pxr import Sdf, Usd, UsdGeom, UsdVol, Vt  # noqa: E402
+
+USD_EXTENSIONS = (".usda", ".usdc", ".usd")
+
+_PRIMVAR_TYPES = {
+    "int": (Sdf.ValueTypeNames.IntArray, Vt.IntArray),
+    "float": (Sdf.ValueTypeNames.FloatArray, Vt.FloatArray),
+    "color3f": (Sdf.ValueTypeNames.Color3fArray, Vt.Vec3fArray),
+}
+
+
+@dataclass(frozen=True)
+class PrimvarEdit:
+    prim: str
+    name: str
+    """Without the ``primvars:`` prefix, e.g. ``foliage:leafId``."""
+    values: np.ndarray
+    type: str
+    """``int``, ``float`` or ``color3f``."""
+    interpolation: str = "uniform"
+    element_size: int = 1
+
+
+@dataclass(frozen=True)
+class VolumeEdit:
+    path: str
+    """Prim path of the ``UsdVol.Volume`` (``<tree>/FoliageLighting``)."""
+    vdb_file: Path
+    """Final path of the ``.vdb`` (beside the layer)."""
+    grids: tuple[Grid, ...]
+    attributes: dict = field(default_factory=dict)
+    """``foliage:*`` attribute values of FoliageLightingAPI."""
+
+
+@dataclass(frozen=True)
+class AttributeEdit:
+    prim: str
+    api: str | None
+    values: dict
+    """name -> (value, Sdf type name string, e.g. 'float')."""
+
+
+@dataclass
+class LayerEdits:
+    primvars: list[PrimvarEdit] = field(default_factory=list)
+    volumes: list[VolumeEdit] = field(default_factory=list)
+    attributes: list[AttributeEdit] = field(default_factory=list)
+
+
+def check_output_path(input_path: Path, out: Path) -> None:
+    """Refuse outputs that would destroy the input or cannot be written."""
+    if out.suffix not in USD_EXTENSIONS:
+        raise OutputError(f"@{out}@: the output must be a USD layer ({', '.join(USD_EXTENSIONS)}).")
+    if out.resolve() == Path(input_path).resolve():
+        raise OutputError(f"@{out}@ is the input file; choose another output (inputs are never modified).")
+    check_writable(out)
+
+
+def _relative(target: Path, start_dir: Path) -> str:
+    rel = os.path.relpath(Path(target).resolve(), start_dir.resolve())
+    return rel if rel.startswith(".") else f"./{rel}"
+
+
+def _set_attr(prim: Usd.Prim, name: str, value, type_name: str) -> None:
+    attr = prim.CreateAttribute(name, getattr(Sdf.ValueTypeNames, type_name))
+    attr.Set(value)
+
+
+def write_layer(input_path: Path, out: Path, edits: LayerEdits, *, input_stage_meta: dict) -> list[Path]:
+    """Write the output layer and its grid files atomically; return the paths written."""
+    input_path = Path(input_path)
+    out = Path(out)
+    check_output_path(input_path, out)
+    vdb_files = [v.vdb_file for v in edits.volumes]
+    if len(set(vdb_files)) != len(vdb_files):
+        raise ValueError("each volume needs its own .vdb file")
+    with atomic_outputs([*vdb_files, out]) as temps:
+        for vol in edits.volumes:
+            write_vdb(temps[vol.vdb_file], list(vol.grids), metadata={"creator": "foliage-tools"})
+        tmp = temps[out]
+        layer = Sdf.Layer.CreateNew(str(tmp))
+        if layer is None:  # pragma: no cover - CreateNew raises on failure in practice
+            raise OutputError(f"@{out}@: cannot create the layer.")
+        layer.subLayerPaths.append(_relative(input_path, out.parent))
+        for key in ("upAxis", "metersPerUnit", "defaultPrim"):
+            if input_stage_meta.get(key) is not None:
+                layer.pseudoRoot.SetInfo(key, input_stage_meta[key])
+        stage = Usd.Stage.Open(layer)
+        stage.SetEditTarget(Usd.EditTarget(layer))
+        _author(stage, edits, out)
+        layer.Save()
+    return [*vdb_files, out]
+
+
+def _author(stage: Usd.Stage, edits: LayerEdits, out: Path) -> None:
+    for pv in edits.primvars:
+        prim = stage.OverridePrim(pv.prim)
+        sdf_type, vt = _PRIMVAR_TYPES[pv.type]
+        primvar = UsdGeom.PrimvarsAPI(prim).CreatePrimvar(pv.name, sdf_type, pv.interpolation, pv.element_size)
+        values = np.ascontiguousarray(pv.values)
+        if pv.type == "int":
+            values = values.astype(np.int32)
+        else:
+            values = values.astype(np.float32)
+        primvar.Set(vt.FromNumpy(values))
+    for vol in edits.volumes:
+        volume = UsdVol.Volume.Define(stage, vol.path)
+        volume.CreatePurposeAttr(UsdGeom.Tokens.guide)
+        lo = np.min([np.asarray(g.origin) for g in vol.grids], axis=0)
+        hi = np.max([np.asarray(g.origin) + np.asarray(g.values.shape[:3]) * g.voxel_size for g in vol.grids], axis=0)
+        volume.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))
+        rel_file = _relative(vol.vdb_file, out.parent)
+        for g in vol.grids:
+            field_path = Sdf.Path(vol.path).AppendChild(g.name)
+            asset = UsdVol.OpenVDBAsset.Define(stage, field_path)
+            asset.CreateFilePathAttr(Sdf.AssetPath(rel_file))
+            asset.CreateFieldNameAttr(g.name)
+            asset.CreateFieldDataTypeAttr(g.data_type)
+            volume.CreateFieldRelationship(g.name, field_path)
+        prim = volume.GetPrim()
+        prim.ApplyAPI(LIGHTING_API)
+        for name, value in vol.attributes.items():
+            attr = prim.GetAttribute(name)
+            if not attr:
+                raise ValueError(f"{name} is not an attribute of {LIGHTING_API}")
+            attr.Set(value)
+    for edit in edits.attributes:
+        prim = stage.OverridePrim(edit.prim)
+        if edit.api:
+            prim.ApplyAPI(edit.api)
+        for name, (value, type_name) in edit.values.items():
+            _set_attr(prim, name, value, type_name)
+
+
+def stage_metadata(stage_path: Path) -> dict:
+    """upAxis, metersPerUnit and defaultPrim of the input's root layer (copied into outputs)."""
+    layer = Sdf.Layer.FindOrOpen(str(stage_path))
+    meta = {}
+    for key in ("upAxis", "metersPerUnit", "defaultPrim"):
+        if layer is not None and layer.pseudoRoot.HasInfo(key):
+            meta[key] = layer.pseudoRoot.GetInfo(key)
+    return meta

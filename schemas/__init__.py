@@ -1,0 +1,1 @@
+"""Data files: codeless USD API schemas (usd/) and JSON report schemas (json/)."""
