@@ -6,6 +6,7 @@ import json
 import sys
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 stderr = Console(stderr=True)
@@ -63,4 +64,4 @@ def warn(messages: list[str], quiet: bool) -> None:
     if quiet:
         return
     for m in messages:
-        stderr.print(f"[yellow]warning:[/yellow] {m}", highlight=False, markup=True)
+        stderr.print(f"[yellow]warning:[/yellow] {escape(m)}", highlight=False, markup=True, soft_wrap=True)

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Callable
 
 import click
+from rich.markup import escape
 from rich.table import Table
 
 from foliage_tools import __version__
@@ -54,7 +55,7 @@ def run(body: Callable[[], int]) -> None:
     try:
         code = body()
     except FoliageError as exc:
-        console.stderr.print(f"[red]error:[/red] {exc}", highlight=False)
+        console.stderr.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False, markup=True, soft_wrap=True)
         code = exc.exit_code
     except KeyboardInterrupt:
         console.stderr.print("interrupted; no output was written.")
@@ -63,7 +64,7 @@ def run(body: Callable[[], int]) -> None:
         raise
     except Exception as exc:  # the top-level handler: anything else is our bug
         log = crash_log(exc)
-        console.stderr.print(f"[red]internal error:[/red] {type(exc).__name__}: {exc}\nA crash log is at {log}; please attach it to a bug report.", highlight=False)
+        console.stderr.print(f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))}\nA crash log is at {log}; please attach it to a bug report.", highlight=False, soft_wrap=True)
         code = EXIT_INTERNAL
     sys.exit(code)
 
@@ -119,13 +120,14 @@ def inspect(scene: Path, as_json: bool, quiet: bool, verbose: int) -> None:
         if not quiet:
             s = report.stats
             table = Table(title=f"{scene}  (up {s['up_axis']}, {s['meters_per_unit']} m/unit)")
-            for col in ("prototype", "kind", "instances", "leaves", "leaf tris", "wood tris", "leaf area", "bounds min", "bounds max"):
-                table.add_column(col, justify="right" if col not in ("prototype", "kind") else "left")
+            for col in ("prototype", "kind", "inst.", "leaves", "leaf tris", "wood tris", "leaf area", "size"):
+                table.add_column(col, justify="left" if col in ("prototype", "kind") else "right", overflow="fold")
             for p in s["prototypes"]:
                 lo, hi = p["bounds"]
+                size = "×".join(f"{b - a:.3g}" for a, b in zip(lo, hi))
                 table.add_row(
-                    p["path"], p["kind"], str(p["instances"]), str(p["leaves"]), str(p["leaf_triangles"]), str(p["wood_triangles"]),
-                    f"{p['leaf_area']:.4g}", ", ".join(f"{v:.3g}" for v in lo), ", ".join(f"{v:.3g}" for v in hi),
+                    escape(p["path"]), p["kind"], str(p["instances"]), str(p["leaves"]), str(p["leaf_triangles"]),
+                    str(p["wood_triangles"]), f"{p['leaf_area']:.4g}", size,
                 )
             console.stdout.print(table)
             console.stdout.print(f"{s['instances']} instance(s), {s['leaves_total']} leaves placed in the world")
@@ -173,7 +175,7 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
         elif not quiet:
             for f in report.stats["findings"]:
                 colour = "red" if f["severity"] == "error" else "yellow"
-                console.stdout.print(f"[{colour}]{f['severity']}[/{colour}] [{f['rule']}] {f['message']}", highlight=False)
+                console.stdout.print(f"[{colour}]{f['severity']}[/{colour}] {escape('[' + f['rule'] + ']')} {escape(f['message'])}", highlight=False, soft_wrap=True)
             s = report.stats
             verdict = "FAILED" if failed else "passed"
             console.stdout.print(f"{scene}: {verdict} ({s['errors']} error(s), {s['warnings']} warning(s){', strict' if strict else ''})", highlight=False)

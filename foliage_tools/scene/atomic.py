@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import tempfile
 from pathlib import Path
 from typing import Iterator
 
@@ -23,10 +24,14 @@ def check_writable(path: Path) -> None:
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.exists():
         raise OutputError(f"@{path}@: the directory {parent} does not exist; create it first.")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise OutputError(f"@{path}@: the directory {parent} is not writable; choose another output path.")
     if path.is_dir():
         raise OutputError(f"@{path}@ is a directory; give a file name.")
+    # os.access says yes to root on read-only mounts and special filesystems: try it for real
+    try:
+        with tempfile.NamedTemporaryFile(dir=parent, prefix=".foliage-probe-"):
+            pass
+    except OSError as exc:
+        raise OutputError(f"@{path}@: the directory {parent} is not writable ({exc.strerror}); choose another output path.") from None
 
 
 @contextlib.contextmanager
@@ -42,6 +47,8 @@ def atomic_outputs(paths: list[Path]) -> Iterator[dict[Path, Path]]:
         for final, tmp in temps.items():
             if tmp.exists():
                 os.replace(tmp, final)
+    except OSError as exc:
+        raise OutputError(f"@{exc.filename or paths[-1]}@: cannot be written ({exc.strerror}); nothing was written.") from None
     finally:
         for tmp in temps.values():
             with contextlib.suppress(FileNotFoundError):

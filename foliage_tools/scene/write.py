@@ -147,6 +147,8 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path) -> None:
             attr = prim.GetAttribute(name)
             if not attr:
                 raise ValueError(f"{name} is not an attribute of {LIGHTING_API}")
+            if isinstance(value, (tuple, list)):  # e.g. int3 -> Gf.Vec3i
+                value = attr.GetTypeName().type.pythonClass(*value)
             attr.Set(value)
     for edit in edits.attributes:
         prim = stage.OverridePrim(edit.prim)

@@ -1,0 +1,119 @@
+"""Bad inputs get a clear message and the DESIGN.md exit code; inputs never change.
+
+These run the real command (``python -m foliage_tools``) in a subprocess.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from tests.conftest import cards_mesh, sha256, write_mesh_stage
+
+
+def foliage(*args, cwd=None) -> subprocess.CompletedProcess:
+    env = dict(os.environ, XDG_CACHE_HOME=str(Path(cwd or ".").resolve() / ".cache"))
+    return subprocess.run([sys.executable, "-m", "foliage_tools", *map(str, args)], capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
+
+
+def test_missing_file_exits_2_naming_it(tmp_path):
+    r = foliage("inspect", tmp_path / "nope.usda")
+    assert r.returncode == 2
+    assert "nope.usda" in r.stderr and "no such file" in r.stderr
+
+
+def test_not_usd_exits_2(tmp_path):
+    bogus = tmp_path / "bogus.usda"
+    bogus.write_text("this is not usd\n")
+    r = foliage("inspect", bogus)
+    assert r.returncode == 2, r.stderr
+    assert "bogus.usda" in r.stderr and "USD" in r.stderr
+    other = tmp_path / "tree.obj"
+    other.write_text("v 0 0 0\n")
+    r = foliage("inspect", other)
+    assert r.returncode == 2 and "not a USD file" in r.stderr
+
+
+def test_empty_stage_exits_2(tmp_path):
+    empty = tmp_path / "empty.usda"
+    empty.write_text("#usda 1.0\n")
+    r = foliage("inspect", empty)
+    assert r.returncode == 2 and "empty" in r.stderr
+
+
+def test_no_leaves_exits_2_and_says_how_to_mark_them(tmp_path):
+    path = write_mesh_stage(tmp_path / "wood.usda", {"Trunk": {**cards_mesh([(0, 0, 0)]), "isLeaf": False}})
+    r = foliage("density", path, "-o", tmp_path / "out.usda")
+    assert r.returncode == 2
+    assert "no leaves" in r.stderr and "FoliageLeafAPI" in r.stderr and "<" in r.stderr
+    assert not (tmp_path / "out.usda").exists()
+
+
+def test_nan_points_exit_2_naming_the_prim(tmp_path):
+    m = cards_mesh([(0, 0, 0)])
+    m["points"][2, 1] = np.nan
+    path = write_mesh_stage(tmp_path / "nan.usda", {"Leaves": {**m, "isLeaf": True}})
+    before = sha256(path)
+    r = foliage("density", path, "-o", tmp_path / "out.usda")
+    assert r.returncode == 2
+    assert "</Tree/Leaves>" in r.stderr and "NaN" in r.stderr
+    v = foliage("validate", path, "--json")
+    assert v.returncode == 1
+    rules = {f["rule"] for f in json.loads(v.stdout)["stats"]["findings"]}
+    assert "finite-geometry" in rules
+    assert sha256(path) == before
+
+
+def test_degenerate_triangles_warn_and_fail_only_strict(tmp_path):
+    m = cards_mesh([(0, 0, 0), (1, 0, 0)])
+    m["points"][4:8] = m["points"][4]  # second card collapsed to a point
+    path = write_mesh_stage(tmp_path / "degen.usda", {"Leaves": {**m, "isLeaf": True}})
+    assert foliage("validate", path).returncode == 0
+    strict = foliage("validate", path, "--strict")
+    assert strict.returncode == 1 and "degenerate" in strict.stdout
+    r = foliage("inspect", path, "--json")
+    report = json.loads(r.stdout)
+    assert report["stats"]["prototypes"][0]["leaves"] == 1
+    assert any("degenerate" in w for w in report["warnings"])
+
+
+def test_usage_errors_exit_2(tmp_path, simple_tree):
+    r = foliage("density", simple_tree, "-o", tmp_path / "o.usda", "--voxel-size", "0.1", "--resolution", "8")
+    assert r.returncode == 2 and "--voxel-size" in r.stderr and "--resolution" in r.stderr
+    r = foliage("density", simple_tree, "-o", tmp_path / "o.usda", "--method", "magic")
+    assert r.returncode == 2
+
+
+def test_output_equal_to_input_is_refused(simple_tree):
+    before = sha256(simple_tree)
+    r = foliage("density", simple_tree, "-o", simple_tree)
+    assert r.returncode == 2 and "is the input file" in r.stderr
+    assert sha256(simple_tree) == before
+
+
+def test_unwritable_output_dir_exits_2(simple_tree):
+    # /proc refuses new files even to root (CI runs as root, so chmod would not do)
+    r = foliage("density", simple_tree, "-o", "/proc/o.usda")
+    assert r.returncode == 2 and "not writable" in r.stderr
+
+
+def test_output_in_missing_directory_exits_2(tmp_path, simple_tree):
+    r = foliage("density", simple_tree, "-o", tmp_path / "no" / "such" / "dir" / "o.usda")
+    assert r.returncode == 2 and "does not exist" in r.stderr
+
+
+def test_output_must_be_a_usd_layer(tmp_path, simple_tree):
+    r = foliage("density", simple_tree, "-o", tmp_path / "o.vdb")
+    assert r.returncode == 2 and "USD layer" in r.stderr
+
+
+def test_help_teaches_with_examples():
+    r = foliage("--help")
+    assert r.returncode == 0 and "Exit codes" in r.stdout
+    for cmd in ("inspect", "validate", "density"):
+        h = foliage(cmd, "--help")
+        assert h.returncode == 0 and "Example" in h.stdout, cmd

@@ -1,0 +1,28 @@
+"""Every ``--json`` report matches schemas/json/report.schema.json (the contract other tools parse)."""
+
+import json
+from pathlib import Path
+
+import jsonschema
+import pytest
+
+from tests.integration.test_cli_errors import foliage
+
+SCHEMA = json.loads((Path(__file__).resolve().parents[2] / "schemas" / "json" / "report.schema.json").read_text())
+
+
+@pytest.mark.parametrize("command", ["inspect", "validate", "density"])
+def test_json_report_matches_schema(command, simple_tree, tmp_path):
+    args = [command, simple_tree, "--json"]
+    if command == "density":
+        args += ["-o", tmp_path / "d.usda", "--resolution", "8"]
+    r = foliage(*args)
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)  # stdout holds the JSON object and nothing else
+    jsonschema.validate(report, SCHEMA)
+    assert report["command"] == command
+
+
+def test_schema_rejects_a_report_missing_stats():
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({"command": "inspect", "version": "0", "inputs": [], "outputs": [], "seconds": 0, "warnings": []}, SCHEMA)
