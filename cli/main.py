@@ -1,77 +1,23 @@
 """``foliage``: bake the light that scatters through foliage.
 
 Each subcommand maps its flags one-to-one to a pipeline function's keyword
-arguments and turns the returned report into output and an exit code. The
-error handling below is the one place where failures become exit codes
-(DESIGN.md section 3): 0 ok, 1 findings, 2 bad usage or input, 3 internal
-error (with a crash log), 130 interrupted.
+arguments and turns the returned report into output and an exit code
+(``cli/common.py`` maps failures to exit codes). Larger commands live in
+their own modules and are added to the group at the bottom.
 """
 
 from __future__ import annotations
 
-import datetime as _dt
-import logging
-import os
-import sys
-import tempfile
-import traceback
 from pathlib import Path
-from typing import Callable
 
 import click
 from rich.markup import escape
 from rich.table import Table
 
 from foliage_tools import __version__
-from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERNAL, EXIT_INTERRUPTED, FoliageError
 from foliage_tools.cli import console
-
-SCENE = click.argument("scene", type=click.Path(path_type=Path, dir_okay=True))
-OUT = click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), help="Output USD layer (.usda/.usdc); grids go beside it as .vdb files.")
-JSON = click.option("--json", "as_json", is_flag=True, help="Print one JSON report on stdout (schemas/json/report.schema.json) instead of tables.")
-
-
-def _common(fn: Callable) -> Callable:
-    fn = click.option("-v", "--verbose", count=True, help="More log output (repeat for debug).")(fn)
-    fn = click.option("-q", "--quiet", is_flag=True, help="No progress, warnings or tables; errors still go to stderr.")(fn)
-    return JSON(fn)
-
-
-def crash_log(exc: BaseException) -> Path:
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "foliage-tools"
-    try:
-        base.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        base = Path(tempfile.gettempdir())
-    path = base / f"crash-{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.log"
-    path.write_text(
-        f"foliage {__version__}\nargv: {sys.argv}\n\n" + "".join(traceback.format_exception(exc)), encoding="utf-8"
-    )
-    return path
-
-
-def run(body: Callable[[], int]) -> None:
-    """Run a command body, mapping every outcome to an exit code."""
-    try:
-        code = body()
-    except FoliageError as exc:
-        console.stderr.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False, markup=True, soft_wrap=True)
-        code = exc.exit_code
-    except KeyboardInterrupt:
-        console.stderr.print("interrupted; no output was written.")
-        code = EXIT_INTERRUPTED
-    except (click.exceptions.Exit, click.ClickException):
-        raise
-    except Exception as exc:  # the top-level handler: anything else is our bug
-        log = crash_log(exc)
-        console.stderr.print(f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))}\nA crash log is at {log}; please attach it to a bug report.", highlight=False, soft_wrap=True)
-        code = EXIT_INTERNAL
-    sys.exit(code)
-
-
-def _setup_logging(verbose: int, quiet: bool) -> None:
-    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+from foliage_tools.cli.common import OUT, SCENE, common_options, run, setup_logging
+from foliage_tools.errors import EXIT_FINDINGS
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -96,7 +42,7 @@ def cli() -> None:
 
 @cli.command()
 @SCENE
-@_common
+@common_options
 def inspect(scene: Path, as_json: bool, quiet: bool, verbose: int) -> None:
     """Show the prototypes, instances, leaves, wood, bounds and lights of SCENE.
 
@@ -111,7 +57,7 @@ def inspect(scene: Path, as_json: bool, quiet: bool, verbose: int) -> None:
     from foliage_tools.pipeline.inspect import inspect as do_inspect
 
     def body() -> int:
-        _setup_logging(verbose, quiet)
+        setup_logging(verbose, quiet)
         report = do_inspect(scene)
         if as_json:
             console.print_json(report.as_json())
@@ -146,7 +92,7 @@ def inspect(scene: Path, as_json: bool, quiet: bool, verbose: int) -> None:
 @SCENE
 @click.option("--strict", is_flag=True, help="Treat warnings (e.g. degenerate triangles) as failures too.")
 @click.option("--list-rules", is_flag=True, help="List the rules that are checked and exit.")
-@_common
+@common_options
 def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: bool, verbose: int) -> None:
     """Check SCENE with USD's validators and the foliage rules.
 
@@ -164,7 +110,7 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
     from foliage_tools.scene.validate import rule_docs
 
     def body() -> int:
-        _setup_logging(verbose, quiet)
+        setup_logging(verbose, quiet)
         if list_rules:
             for name, doc in rule_docs():
                 console.stdout.print(f"{name}: {doc}", highlight=False)
@@ -192,7 +138,7 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
 @click.option("--method", type=click.Choice(["area", "subgrid"]), default="area", show_default=True,
               help="area: exact leaf area per voxel / voxel volume (leaf-area density, 1/unit). "
                    "subgrid: geist2008 sec. 4.2 heuristic, fraction of 27 sub-cells touched (0..1).")
-@_common
+@common_options
 def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | None, method: str, as_json: bool, quiet: bool, verbose: int) -> None:
     """Voxelize each prototype's leaves into a density grid and a wood-fraction grid.
 
@@ -209,7 +155,7 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
     from foliage_tools.pipeline.density import run_density
 
     def body() -> int:
-        _setup_logging(verbose, quiet)
+        setup_logging(verbose, quiet)
         params = DensityParams(voxel_size=voxel_size, resolution=resolution, method=method)
         with console.RichProgress(enabled=not (quiet or as_json)) as progress:
             report = run_density(scene, out, params, progress=progress)

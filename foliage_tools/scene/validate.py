@@ -21,7 +21,7 @@ from foliage_tools.scene.vdb import grid_names, read_grid
 
 register()
 
-from pxr import Sdf, Usd, UsdGeom, UsdValidation, UsdVol  # noqa: E402
+from pxr import Usd, UsdGeom, UsdValidation, UsdVol  # noqa: E402
 
 ERROR = "error"
 WARNING = "warning"

@@ -1,0 +1,71 @@
+"""What every ``foliage`` subcommand shares: argument decorators and the error handling.
+
+``run`` is the one place where failures become exit codes (DESIGN.md section
+3): 0 ok, 1 findings, 2 bad usage or input, 3 internal error (with a crash
+log), 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+import os
+import sys
+import tempfile
+import traceback
+from pathlib import Path
+from typing import Callable
+
+import click
+from rich.markup import escape
+
+from foliage_tools import __version__
+from foliage_tools.cli import console
+from foliage_tools.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, FoliageError
+
+SCENE = click.argument("scene", type=click.Path(path_type=Path, dir_okay=True))
+OUT = click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), help="Output USD layer (.usda/.usdc); grids go beside it as .vdb files.")
+JSON = click.option("--json", "as_json", is_flag=True, help="Print one JSON report on stdout (schemas/json/report.schema.json) instead of tables.")
+
+
+def common_options(fn: Callable) -> Callable:
+    fn = click.option("-v", "--verbose", count=True, help="More log output (repeat for debug).")(fn)
+    fn = click.option("-q", "--quiet", is_flag=True, help="No progress, warnings or tables; errors still go to stderr.")(fn)
+    return JSON(fn)
+
+
+def crash_log(exc: BaseException) -> Path:
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "foliage-tools"
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        base = Path(tempfile.gettempdir())
+    path = base / f"crash-{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.log"
+    path.write_text(
+        f"foliage {__version__}\nargv: {sys.argv}\n\n" + "".join(traceback.format_exception(exc)), encoding="utf-8"
+    )
+    return path
+
+
+def run(body: Callable[[], int]) -> None:
+    """Run a command body, mapping every outcome to an exit code."""
+    try:
+        code = body()
+    except FoliageError as exc:
+        console.stderr.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False, markup=True, soft_wrap=True)
+        code = exc.exit_code
+    except KeyboardInterrupt:
+        console.stderr.print("interrupted; no output was written.")
+        code = EXIT_INTERRUPTED
+    except (click.exceptions.Exit, click.ClickException):
+        raise
+    except Exception as exc:  # the top-level handler: anything else is our bug
+        log = crash_log(exc)
+        console.stderr.print(f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))}\nA crash log is at {log}; please attach it to a bug report.", highlight=False, soft_wrap=True)
+        code = EXIT_INTERNAL
+    sys.exit(code)
+
+
+def setup_logging(verbose: int, quiet: bool) -> None:
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
