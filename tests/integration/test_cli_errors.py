@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from tests.conftest import cards_mesh, sha256, write_mesh_stage
 
 
 def foliage(*args, cwd=None) -> subprocess.CompletedProcess:
-    env = dict(os.environ, XDG_CACHE_HOME=str(Path(cwd or ".").resolve() / ".cache"))
+    env = dict(os.environ, XDG_CACHE_HOME=str(Path(tempfile.gettempdir()) / "foliage-test-cache"))
     return subprocess.run([sys.executable, "-m", "foliage_tools", *map(str, args)], capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
 
 
