@@ -243,12 +243,17 @@ class _Reader:
             p = self.stage.GetPrimAtPath(target)
             if not p:
                 raise InputError(f"@{self.path}@: point instancer <{prim.GetPath()}> names a missing prototype <{target}>.")
-            key = ("pointinstancer", str(target))
-            if key not in self.keys:
-                src = p.GetPrototype() if p.IsInstance() else p
-                # with IncludeProtoXform the prototype root's own transform is in `xforms`;
-                # geometry is then read relative to the root.
-                self.keys[key] = self.read_prototype(src, path=str(target), kind="pointinstancer", root_xform=np.eye(4))
+            # with IncludeProtoXform the prototype root's own transform is in `xforms`, so geometry is
+            # read relative to the root; an instanceable prototype shares its native prototype with
+            # every other instance of the same asset (read once).
+            if p.IsInstance():
+                key = ("instance", str(p.GetPrototype().GetPath()))
+                if key not in self.keys:
+                    self.keys[key] = self.read_prototype(p.GetPrototype(), path=str(target), kind="instance", root_xform=np.eye(4))
+            else:
+                key = ("pointinstancer", str(target))
+                if key not in self.keys:
+                    self.keys[key] = self.read_prototype(p, path=str(target), kind="pointinstancer", root_xform=np.eye(4))
             proto_ids[j] = self.keys[key]
         for i, (pidx, xf) in enumerate(zip(proto_indices, xforms)):
             if not mask[i] or int(pidx) not in proto_ids:
