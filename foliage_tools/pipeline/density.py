@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools import __version__
-from foliage_tools.errors import InputError
+from foliage_tools.errors import InputError, UsageError
 from foliage_tools.geometry.voxelize import GridSpec, area_per_voxel, grid_for_bounds, mark_wood_fraction, subgrid_coverage
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.report import Progress, Report, Silent
@@ -18,6 +18,11 @@ from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.vdb import Grid
 from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, check_output_path, stage_metadata, write_layer
+
+
+#: Largest grid a density bake will allocate (float64 work arrays: 8 bytes × 3 per voxel).
+MAX_RESOLUTION = 1024
+MAX_CELLS = MAX_RESOLUTION**3 // 2
 
 
 @dataclass(frozen=True)
@@ -42,6 +47,12 @@ def compute_density(proto: Prototype, params: DensityParams) -> DensityResult:
     wood = proto.triangles(leaves=False)
     lo, hi = proto.bounds(leaves_only=True)
     grid = grid_for_bounds(lo, hi, margin_voxels=params.margin_voxels, **params.grid_options())
+    cells = int(np.prod(grid.shape))
+    if cells > MAX_CELLS:
+        raise UsageError(
+            f"prototype <{proto.path}>: a {'x'.join(map(str, grid.shape))} grid ({cells / 1e6:.0f}M voxels) is too large; "
+            f"use a larger --voxel-size or a --resolution of at most {MAX_RESOLUTION}."
+        )
     if params.method == "area":
         leaf_area = area_per_voxel(leaf, grid)
         wood_area = area_per_voxel(wood, grid) if len(wood) else np.zeros(grid.shape)

@@ -118,3 +118,9 @@ def test_help_teaches_with_examples():
     for cmd in ("inspect", "validate", "density"):
         h = foliage(cmd, "--help")
         assert h.returncode == 0 and "Example" in h.stdout, cmd
+
+
+def test_absurd_voxel_size_is_a_usage_error_not_a_memory_error(tmp_path, simple_tree):
+    r = foliage("density", simple_tree, "-o", tmp_path / "o.usda", "--voxel-size", "1e-5")
+    assert r.returncode == 2 and "too large" in r.stderr and "--voxel-size" in r.stderr
+    assert not (tmp_path / "o.usda").exists()

@@ -323,7 +323,7 @@ def test_area_random_triangles_conserve_total(rng):
     total = tri_areas(tris).sum()
     assert abs(area.sum() - total) <= 1e-12 * total
     # small triangles (leaf-like) too
-    small = rng.uniform(lo + 0.1, hi - 0.1, size=(3000, 1, 3)) + rng.normal(scale=0.05, size=(3000, 3, 3))
+    small = np.clip(rng.uniform(lo, hi, size=(3000, 1, 3)) + rng.normal(scale=0.05, size=(3000, 3, 3)), lo, hi)
     area = area_per_voxel(small, grid)
     assert abs(area.sum() - tri_areas(small).sum()) <= 1e-12 * tri_areas(small).sum()
 
@@ -451,7 +451,7 @@ def test_sat_rejects_bounding_box_overlap():
     tri[:] = [[0.4, 1.5, 0.5], [1.5, 0.4, 0.5], [2.0, 2.0, 0.5]]
     assert _tri_box_overlap(tri, 0.5, 0.5, 0.5, 0.5)
     # a tilted triangle beside a box edge: its bounding box [0.9, 2] x [0.9, 2] x [0.2, 0.8] overlaps the
-    # box, and its plane cuts the box (the plane contains (0.5, 0.5, 0.5) + t (1, -1, 0)), but x + y >= 2.9
+    # box, and its plane passes through the box centre (normal (-0.33, 0.33, 1.21)), but x + y >= 2.9
     tri[:] = [[0.9, 2.0, 0.2], [2.0, 0.9, 0.8], [2.0, 2.0, 0.5]]
     assert not _tri_box_overlap(tri, 0.5, 0.5, 0.5, 0.5)
     # touching counts: a triangle in the plane z = 1 over the box
@@ -459,6 +459,19 @@ def test_sat_rejects_bounding_box_overlap():
     assert _tri_box_overlap(tri, 0.5, 0.5, 0.5, 0.5)
     tri[:, 2] = 1.0 + 1e-12
     assert not _tri_box_overlap(tri, 0.5, 0.5, 0.5, 0.5)
+
+
+def test_sat_matches_clipping_on_random_triangles(rng):
+    # near-miss triangles around the box [0,1]^3: the SAT agrees with clipping, including on the many
+    # whose bounding box overlaps the box while the triangle misses it
+    tris = rng.uniform(-0.6, 1.6, size=(1500, 1, 3)) + rng.normal(scale=0.5, size=(1500, 3, 3))
+    lo, hi = np.zeros(3), np.ones(3)
+    bbox_only = 0
+    for t in tris:
+        want = bool(_ref_clip_box(t, lo, hi))
+        assert _tri_box_overlap(t, 0.5, 0.5, 0.5, 0.5) == want
+        bbox_only += (not want) and bool(np.all(t.min(0) <= hi) and np.all(t.max(0) >= lo))
+    assert bbox_only > 100
 
 
 def test_subgrid_matches_python_reference(rng):
