@@ -20,7 +20,7 @@ demo: setup
 	$(FOLIAGE) validate $(EXAMPLE)
 	$(FOLIAGE) density $(EXAMPLE) -o $(DEMO)/tree.density.usda --resolution 64
 	$(FOLIAGE) validate $(DEMO)/tree.density.usda
-	@echo "demo outputs are in $(DEMO)/: tree.density.usda (layer over the example) and tree.density.density.vdb (grids)"
+	@echo "demo outputs are in $(DEMO)/: tree.density.usda (layer over the example) and tree.density.vdb (grids)"
 
 test: setup
 	$(PY) -m pytest -m "not slow" -q

@@ -144,7 +144,7 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
 
     Writes OUT (a layer that sublayers SCENE) with primvars:foliage:leafId on
     the leaf meshes and a <tree>/FoliageLighting volume whose fields `density`
-    and `woodFraction` live in OUT.density.vdb beside it. Grids are cropped to
+    and `woodFraction` live in OUT.vdb beside it. Grids are cropped to
     the foliage bounds plus one voxel and stored sparse.
 
     \b

@@ -80,11 +80,12 @@ def volume_path(proto: Prototype) -> str:
     return f"/FoliageBakes/{re.sub(r'[^A-Za-z0-9_]', '_', proto.name)}/FoliageLighting"
 
 
-def vdb_path(out: Path, scene: Scene, index: int, stage: str) -> Path:
+def vdb_path(out: Path, scene: Scene, index: int) -> Path:
+    """``OUT.vdb`` beside the layer; one file per prototype (``OUT.NN_name.vdb``) when there are several."""
     if len(scene.prototypes) == 1:
-        return out.with_name(f"{out.stem}.{stage}.vdb")
+        return out.with_suffix(".vdb")
     name = re.sub(r"[^A-Za-z0-9_]", "_", scene.prototypes[index].name)
-    return out.with_name(f"{out.stem}.{stage}.{index:02d}_{name}.vdb")
+    return out.with_name(f"{out.stem}.{index:02d}_{name}.vdb")
 
 
 def require_leaves(scene: Scene, path: Path) -> None:
@@ -143,7 +144,7 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
             Grid("density", res.density.astype(np.float32), tuple(res.grid.origin), res.grid.voxel_size, grid_meta),
             Grid("woodFraction", res.wood_fraction.astype(np.float32), tuple(res.grid.origin), res.grid.voxel_size, {"units": "fraction"}),
         )
-        edits.volumes.append(VolumeEdit(path=volume_path(proto), vdb_file=vdb_path(out, scene, i, "density"), grids=grids, attributes=meta))
+        edits.volumes.append(VolumeEdit(path=volume_path(proto), vdb_file=vdb_path(out, scene, i), grids=grids, attributes=meta))
         rel_err = abs(res.leaf_area_grid - res.leaf_area_mesh) / res.leaf_area_mesh if params.method == "area" else None
         protos.append(
             {

@@ -35,7 +35,7 @@ def test_area_method_conserves_leaf_area_on_oak(oak_density):
     p = report.stats["prototypes"][0]
     assert p["leaves"] == 1831
     assert p["area_rel_error"] < 1e-6
-    grid = read_grid(out.with_name("oak.density.density.vdb"), "density")
+    grid = read_grid(out.with_name("oak.density.vdb"), "density")
     # read back from the .vdb (float32): still conserves to float32 round-off
     total = float(grid.values.astype(np.float64).sum()) * grid.voxel_size**3
     assert total == pytest.approx(p["leaf_area_mesh"], rel=1e-5)
@@ -45,7 +45,7 @@ def test_grids_read_back_at_the_right_world_positions(oak_density):
     oak, out, report = oak_density
     scene, _ = read_scene(oak)
     leaves = scene.prototypes[0].leaves
-    grid = read_grid(out.with_name("oak.density.density.vdb"), "density")
+    grid = read_grid(out.with_name("oak.density.vdb"), "density")
     # every leaf centre must fall in a voxel holding leaf area (the card's own area is there)
     ijk = np.floor((leaves.centers - np.asarray(grid.origin)) / grid.voxel_size).astype(int)
     assert np.all(ijk >= 0) and np.all(ijk < np.asarray(grid.values.shape))
@@ -104,7 +104,7 @@ def test_validate_passes_the_output_and_fails_without_its_grid(oak_density, tmp_
     msgs = [f["message"] for f in json.loads(missing.stdout)["stats"]["findings"] if f["rule"] == "volume-grids"]
     assert msgs and all("does not exist" in m for m in msgs)
     # a corrupt .vdb
-    (work / "oak.density.density.vdb").write_bytes(b"not a vdb at all")
+    (work / "oak.density.vdb").write_bytes(b"not a vdb at all")
     corrupt = foliage("validate", work / out.name, "--json")
     assert corrupt.returncode == 1
     assert any("not a readable OpenVDB file" in f["message"] for f in json.loads(corrupt.stdout)["stats"]["findings"])
@@ -112,7 +112,7 @@ def test_validate_passes_the_output_and_fails_without_its_grid(oak_density, tmp_
 
 def test_subgrid_method_counts_sub_cells(tmp_path, simple_tree):
     report = run_density(simple_tree, tmp_path / "s.usda", DensityParams(resolution=6, method="subgrid"))
-    grid = read_grid(tmp_path / "s.density.vdb", "density")
+    grid = read_grid(tmp_path / "s.vdb", "density")
     vals = grid.values[grid.values > 0]
     # geist2008 sec. 4.2: every value is a whole number of 27ths, at most 1
     np.testing.assert_allclose(vals * 27, np.round(vals * 27), atol=1e-5)
@@ -140,3 +140,18 @@ def test_density_output_chains_as_input(tmp_path, simple_tree):
     first = run_density(simple_tree, tmp_path / "a.usda", DensityParams(resolution=4))
     second = run_density(tmp_path / "a.usda", tmp_path / "b.usda", DensityParams(resolution=4))
     assert first.stats["prototypes"][0]["leaves"] == second.stats["prototypes"][0]["leaves"] == 2
+
+
+def test_forest_bakes_its_shared_prototype_once(tmp_path):
+    from pxr import Usd, UsdVol
+
+    forest = Path(__file__).resolve().parents[2] / "examples" / "forest_small.usda"
+    report = run_density(forest, tmp_path / "f.usda", DensityParams(resolution=16))
+    protos = report.stats["prototypes"]
+    assert len(protos) == 1 and protos[0]["leaves"] == 1500
+    # a native-instance prototype cannot take overs: its volume goes under /FoliageBakes, with a warning
+    assert protos[0]["volume"].startswith("/FoliageBakes/")
+    assert any("native instance" in w for w in report.warnings)
+    stage = Usd.Stage.Open(str(tmp_path / "f.usda"))
+    assert UsdVol.Volume(stage.GetPrimAtPath(protos[0]["volume"]))
+    assert foliage("validate", tmp_path / "f.usda").returncode == 0
