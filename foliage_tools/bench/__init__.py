@@ -1,0 +1,1 @@
+"""Speed against error: metrics and the registry of methods ``foliage bench`` compares."""
