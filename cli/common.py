@@ -69,3 +69,60 @@ def run(body: Callable[[], int]) -> None:
 def setup_logging(verbose: int, quiet: bool) -> None:
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+
+
+def _load_config(ctx: click.Context, _param, value: Path | None):
+    """``--config FILE.toml``: every option has a key (its long name, dashes or underscores); flags override."""
+    if value is None:
+        return value
+    import tomllib
+
+    try:
+        data = tomllib.loads(Path(value).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise click.BadParameter(f"@{value}@: no such file.", ctx=ctx, param_hint="--config") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise click.BadParameter(f"@{value}@ is not valid TOML ({exc}).", ctx=ctx, param_hint="--config") from None
+    # top-level keys apply to every command, a [COMMAND] table to that command (and wins)
+    section = {k: v for k, v in data.items() if not isinstance(v, dict)}
+    section.update(data.get(ctx.info_name, {}) if isinstance(data.get(ctx.info_name), dict) else {})
+    known = {p.name for p in ctx.command.params}
+    defaults = {}
+    for key, val in section.items():
+        name = key.replace("-", "_")
+        if name not in known:
+            raise click.BadParameter(
+                f"@{value}@: unknown key {key!r} for `foliage {ctx.info_name}`; known: {', '.join(sorted(known))}.",
+                ctx=ctx, param_hint="--config",
+            )
+        defaults[name] = val
+    ctx.default_map = {**(ctx.default_map or {}), **defaults}
+    return value
+
+
+def bake_options(fn: Callable) -> Callable:
+    """Options shared by the bake commands (DESIGN.md section 3)."""
+    fn = click.option(
+        "--config", type=click.Path(path_type=Path, dir_okay=False), callback=_load_config, is_eager=True, expose_value=False,
+        help="TOML file of option values (keys = long option names; a [COMMAND] table applies to one command). Flags override it.",
+    )(fn)
+    fn = click.option("--wood-reflectance", type=click.FloatRange(0, 1), default=None, help="Bark reflectance, 0..1 [default: 0.2].")(fn)
+    fn = click.option(
+        "--leaf-optics", default=None, metavar="PRESET|r,t|rR,rG,rB,tR,tG,tB",
+        help="Leaf reflectance and transmittance: a preset (geist2008, bright), one pair for all channels, or RGB each [default: geist2008].",
+    )(fn)
+    fn = click.option(
+        "--sun", default=None, metavar="AZ,EL",
+        help="Sun azimuth (counter-clockwise about up from +X) and elevation, degrees. Default: the stage's DistantLight, else 45,60.",
+    )(fn)
+    return fn
+
+
+def leaf_optics_from_flags(leaf_optics: str | None, wood_reflectance: float | None):
+    from foliage_tools.errors import UsageError
+    from foliage_tools.lighting.optics import parse_leaf_optics
+
+    try:
+        return parse_leaf_optics(leaf_optics, wood_reflectance=wood_reflectance)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None

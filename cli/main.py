@@ -179,6 +179,15 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
     run(body)
 
 
+def _add_commands() -> None:
+    from foliage_tools.cli.bakes import smax
+
+    cli.add_command(smax)
+
+
+_add_commands()
+
+
 def main() -> None:
     cli(prog_name="foliage")
 

@@ -11,11 +11,13 @@ from tests.integration.test_cli_errors import foliage
 SCHEMA = json.loads((Path(__file__).resolve().parents[2] / "schemas" / "json" / "report.schema.json").read_text())
 
 
-@pytest.mark.parametrize("command", ["inspect", "validate", "density"])
+@pytest.mark.parametrize("command", ["inspect", "validate", "density", "smax"])
 def test_json_report_matches_schema(command, simple_tree, tmp_path):
     args = [command, simple_tree, "--json"]
     if command == "density":
         args += ["-o", tmp_path / "d.usda", "--resolution", "8"]
+    if command == "smax":
+        args += ["-o", tmp_path / "s.usda"]
     r = foliage(*args)
     assert r.returncode == 0, r.stderr
     report = json.loads(r.stdout)  # stdout holds the JSON object and nothing else

@@ -1,0 +1,43 @@
+"""Per-leaf results -> per-face ``uniform`` primvars on the leaf meshes of a prototype."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from foliage_tools.scene.model import Prototype
+from foliage_tools.scene.write import PrimvarEdit
+
+
+def per_face(proto: Prototype, mesh_index: int, per_leaf: np.ndarray) -> np.ndarray:
+    """Values of each authored face of one leaf mesh: the value of its leaf (zeros for degenerate faces).
+
+    ``per_leaf`` is (L,) or (L, k); the result is (F,) or (F, k).
+    """
+    ids = proto.leaves.face_leaf_ids[mesh_index]
+    values = np.asarray(per_leaf)
+    out = np.zeros((ids.shape[0],) + values.shape[1:], dtype=values.dtype)
+    ok = ids >= 0
+    out[ok] = values[ids[ok]]
+    return out
+
+
+def leaf_primvar_edits(proto: Prototype, name: str, per_leaf: np.ndarray, *, type: str, element_size: int = 1) -> list[PrimvarEdit]:
+    """One uniform primvar per leaf mesh of an editable prototype (empty for native-instance prototypes)."""
+    if not proto.editable:
+        return []
+    edits = []
+    for i, mesh in enumerate(proto.meshes):
+        if not mesh.is_leaf:
+            continue
+        values = per_face(proto, i, per_leaf)
+        if element_size > 1:
+            values = values.reshape(-1)
+        edits.append(PrimvarEdit(prim=mesh.path, name=name, values=values, type=type, interpolation="uniform", element_size=element_size))
+    return edits
+
+
+def native_instance_warning(proto: Prototype, what: str) -> str:
+    return (
+        f"prototype <{proto.path}> is a native instance: {what} cannot be authored on its meshes "
+        "(they live in a referenced layer); make the prototype editable (not instanceable) to store them."
+    )

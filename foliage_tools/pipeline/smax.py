@@ -1,0 +1,128 @@
+"""``foliage smax``: per-leaf envelope distances s_max, tree optical thickness τ and Boulanger's lighting.
+
+boulanger2008 chapter 5: s_max(P, ω_j) for the 8 directions of eq. (5.28),
+τ (eq. 5.5 estimated as in sec. 5.6), then per-leaf E_direct and E_scattered
+(eqs. 5.7–5.8, 5.11, 5.24–5.26, 5.33) for the scene's sun.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools import __version__
+from foliage_tools.geometry.sun import choose_sun, to_prototype_space
+from foliage_tools.lighting import boulanger, envelope
+from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.density import require_leaves
+from foliage_tools.pipeline.leafdata import leaf_primvar_edits, native_instance_warning
+from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.scene.read import read_scene
+from foliage_tools.scene.schemas import ENVELOPE_API
+from foliage_tools.scene.write import AttributeEdit, LayerEdits, check_output_path, stage_metadata, write_layer
+
+PATHS = ("auto", "reference", "fast")
+
+
+@dataclass(frozen=True)
+class SmaxParams:
+    """What ``foliage smax`` computes."""
+
+    optics: LeafOptics
+    """Leaf reflectance/transmittance (``--leaf-optics``)."""
+    sun: tuple[float, float] | None = None
+    """``--sun`` azimuth, elevation in degrees; None: the stage's sun or the default."""
+    path: str = "auto"
+    """``reference`` (the paper's O(N²) binning), ``fast`` (near sums + FFT far field) or ``auto``
+    (reference below envelope.EnvelopeParams.auto_threshold leaves)."""
+
+    def __post_init__(self) -> None:
+        if self.path not in PATHS:
+            from foliage_tools.errors import UsageError
+
+            raise UsageError(f"--path must be one of {', '.join(PATHS)}, got {self.path!r}.")
+
+
+def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | None = None) -> Report:
+    progress = progress or Silent()
+    report = Report(command="smax", inputs=[str(path)])
+    check_output_path(path, out)
+    progress.step(f"reading {path}")
+    scene, warnings = read_scene(path)
+    report.warnings.extend(warnings)
+    require_leaves(scene, path)
+    sun = choose_sun(scene.lights, scene.up_axis, params.sun, report.warnings)
+    domes = [light for light in scene.lights if light.kind == "dome"]
+    sky = tuple(float(domes[0].intensity * c) for c in domes[0].color) if domes else (0.0, 0.0, 0.0)
+    edits = LayerEdits()
+    protos = []
+    baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
+    progress.step(f"s_max for {len(baked)} prototype(s)", total=len(baked))
+    for i, proto in baked:
+        insts = scene.instances_of(i)
+        # the sun in the prototype's own frame (DESIGN.md section 4); per-leaf primvars are per prototype,
+        # so instances rotated differently from the first share its lighting
+        sun_local = to_prototype_space(sun.direction, insts[0].transform) if insts else sun.direction
+        up_local = to_prototype_space(scene.up, insts[0].transform) if insts else scene.up
+        rotations = {tuple(np.round(to_prototype_space(sun.direction, inst.transform), 6)) for inst in insts}
+        if len(rotations) > 1:
+            report.warnings.append(
+                f"prototype <{proto.path}> has {len(insts)} instances at {len(rotations)} orientations; its per-leaf "
+                f"lighting primvars use the sun as seen by <{insts[0].path}>."
+            )
+        env = envelope.solve(
+            proto.leaves.centers, proto.leaves.normals, proto.leaves.areas, up=up_local, params=envelope.EnvelopeParams(path=params.path)
+        )
+        light = boulanger.solve(
+            proto.leaves.normals,
+            env.smax,
+            env.tau,
+            up=up_local,
+            params=boulanger.BoulangerParams(
+                sun_direction=tuple(sun_local),
+                reflectance=tuple(params.optics.reflectance),
+                transmittance=tuple(params.optics.transmittance),
+                sky_radiance=sky,
+            ),
+        )
+        progress.advance()
+        if not proto.editable:
+            report.warnings.append(native_instance_warning(proto, "s_max primvars"))
+        edits.primvars += leaf_primvar_edits(proto, "foliage:smax", env.smax, type="float", element_size=8)
+        edits.primvars += leaf_primvar_edits(proto, "foliage:attenuation", env.attenuation, type="float", element_size=8)
+        edits.primvars += leaf_primvar_edits(proto, "foliage:smax:direct", light.e_direct, type="color3f")
+        edits.primvars += leaf_primvar_edits(proto, "foliage:smax:scattered", light.e_scattered, type="color3f")
+        if proto.editable:
+            edits.attributes.append(
+                AttributeEdit(
+                    prim=proto.path,
+                    api=ENVELOPE_API,
+                    values={"foliage:tau": (float(env.tau), "Float")},
+                )
+            )
+        protos.append(
+            {
+                "path": proto.path,
+                "leaves": proto.leaves.count,
+                "tau": float(env.tau),
+                "path_used": env.path,
+                "smax_mean": float(np.mean(env.smax)),
+                "e_direct_mean": np.mean(light.e_direct, axis=0).tolist(),
+                "e_scattered_mean": np.mean(light.e_scattered, axis=0).tolist(),
+                "seconds": float(env.seconds + light.seconds),
+            }
+        )
+    progress.step(f"writing {out}")
+    report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
+    report.stats = {
+        "leaves": int(sum(p["leaves"] for p in protos)),
+        "tau": protos[0]["tau"] if len(protos) == 1 else [p["tau"] for p in protos],
+        "path": protos[0]["path_used"] if len(protos) == 1 else [p["path_used"] for p in protos],
+        "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
+        "optics": params.optics.as_dict(),
+        "version": __version__,
+        "prototypes": protos,
+    }
+    return report.finish()

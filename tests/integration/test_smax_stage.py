@@ -1,0 +1,91 @@
+"""``foliage smax`` end to end: primvars of DESIGN.md section 3, tau on the tree prim, sun choice, config files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from foliage_tools.lighting.optics import parse_leaf_optics
+from foliage_tools.pipeline.smax import SmaxParams, run_smax
+from tests.conftest import sha256
+from tests.integration.test_cli_errors import foliage
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
+
+
+@pytest.fixture(scope="module")
+def smax_out(tmp_path_factory):
+    out = tmp_path_factory.mktemp("smax") / "t.usda"
+    before = sha256(EXAMPLE)
+    report = run_smax(EXAMPLE, out, SmaxParams(optics=parse_leaf_optics(None)))
+    assert sha256(EXAMPLE) == before
+    return out, report
+
+
+def test_primvars_have_the_contracted_shapes(smax_out):
+    from pxr import Usd, UsdGeom
+
+    out, report = smax_out
+    stage = Usd.Stage.Open(str(out))
+    mesh = stage.GetPrimAtPath("/Tree/Leaves")
+    faces = len(UsdGeom.Mesh(mesh).GetFaceVertexCountsAttr().Get())
+    pv = UsdGeom.PrimvarsAPI(mesh)
+    smax = pv.GetPrimvar("foliage:smax")
+    assert smax.GetInterpolation() == "uniform" and smax.GetElementSize() == 8
+    values = np.asarray(smax.Get()).reshape(faces, 8)
+    att = np.asarray(pv.GetPrimvar("foliage:attenuation").Get()).reshape(faces, 8)
+    tau = stage.GetPrimAtPath("/Tree").GetAttribute("foliage:tau").Get()
+    assert stage.GetPrimAtPath("/Tree").HasAPI("FoliageEnvelopeAPI")
+    # attenuation = exp(-tau s_max), the contract of DESIGN.md section 3
+    np.testing.assert_allclose(att, np.exp(-tau * values), rtol=1e-5)
+    assert np.all(values >= 0) and np.all(np.isfinite(values))
+    direct = np.asarray(pv.GetPrimvar("foliage:smax:direct").Get())
+    scattered = np.asarray(pv.GetPrimvar("foliage:smax:scattered").Get())
+    assert direct.shape == scattered.shape == (faces, 3)
+    # both faces summed, sun irradiance 1: E_direct of a leaf never exceeds 1
+    assert np.all(direct >= 0) and np.all(direct <= 1 + 1e-6) and np.all(scattered >= 0)
+    assert report.stats["tau"] == pytest.approx(tau, rel=1e-6)
+    assert foliage("validate", out).returncode == 0
+
+
+def test_sun_flag_overrides_the_stage_sun_with_the_same_angle_convention(tmp_path):
+    optics = parse_leaf_optics(None)
+    stage_sun = run_smax(EXAMPLE, tmp_path / "a.usda", SmaxParams(optics=optics))
+    # the example's DistantLight sits at azimuth 45, elevation 60: the flag with those angles must agree exactly
+    flag_same = run_smax(EXAMPLE, tmp_path / "b.usda", SmaxParams(optics=optics, sun=(45.0, 60.0)))
+    flag_other = run_smax(EXAMPLE, tmp_path / "c.usda", SmaxParams(optics=optics, sun=(225.0, 20.0)))
+    assert stage_sun.stats["sun"]["source"] == "</Lights/Sun>" and flag_same.stats["sun"]["source"] == "--sun"
+    a, b, c = (_direct(tmp_path / f"{n}.usda") for n in "abc")
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    # another sun lights other leaves: per-leaf values change substantially
+    assert np.abs(a - c).mean() > 0.1 * a.mean()
+
+
+def _direct(layer: Path) -> np.ndarray:
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(layer))
+    return np.asarray(UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Tree/Leaves")).GetPrimvar("foliage:smax:direct").Get())
+
+
+def test_config_file_sets_options_and_flags_override(tmp_path):
+    cfg = tmp_path / "bake.toml"
+    cfg.write_text('leaf-optics = "bright"\n[smax]\nsun = "0,30"\n')
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "c.usda", "--config", cfg, "--json")
+    assert r.returncode == 0, r.stderr
+    stats = json.loads(r.stdout)["stats"]
+    assert stats["sun"]["elevation"] == pytest.approx(30.0) and stats["optics"]["reflectance"] == [0.45] * 3
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "d.usda", "--config", cfg, "--sun", "10,70", "--json")
+    assert json.loads(r.stdout)["stats"]["sun"]["elevation"] == pytest.approx(70.0)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("colour = 3\n")
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "e.usda", "--config", bad)
+    assert r.returncode == 2 and "unknown key 'colour'" in r.stderr
+
+
+def test_bad_leaf_optics_is_a_usage_error(tmp_path):
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "o.usda", "--leaf-optics", "0.7,0.7")
+    assert r.returncode == 2 and "≤ 1" in r.stderr
