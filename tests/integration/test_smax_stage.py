@@ -89,3 +89,31 @@ def test_config_file_sets_options_and_flags_override(tmp_path):
 def test_bad_leaf_optics_is_a_usage_error(tmp_path):
     r = foliage("smax", EXAMPLE, "-o", tmp_path / "o.usda", "--leaf-optics", "0.7,0.7")
     assert r.returncode == 2 and "≤ 1" in r.stderr
+
+
+@pytest.mark.parametrize(
+    "asset", ["webots_oak/oak.usda", "webots_bigsassafras/big_sassafras.usda", "sapling_blendertree/blender_tree.usda"]
+)
+def test_runs_on_third_party_trees(asset, tmp_path):
+    from tests.conftest import ASSETS
+
+    path = ASSETS / asset
+    if not path.exists():
+        pytest.skip("third-party assets not present")
+    report = run_smax(path, tmp_path / "o.usda", SmaxParams(optics=parse_leaf_optics(None)))
+    p = report.stats["prototypes"][0]
+    assert p["tau"] > 0 and np.isfinite(p["tau"]) and p["smax_mean"] > 0
+    assert 0 < p["e_direct_mean"][1] <= 1
+
+
+@pytest.mark.slow
+def test_generated_40k_leaf_tree_uses_the_fast_path(tmp_path):
+    import sys
+
+    sys.path.insert(0, str(EXAMPLE.parent))
+    from make_tree import build_tree, write_tree
+
+    geo = build_tree(leaves=40000, leaf_size=0.05, crown="ellipsoid", height=6.0, crown_radius=2.0, seed=3)
+    write_tree(tmp_path / "t40k.usdc", geo)
+    report = run_smax(tmp_path / "t40k.usdc", tmp_path / "o.usda", SmaxParams(optics=parse_leaf_optics(None)))
+    assert report.stats["leaves"] == 40000 and report.stats["path"] == "fast"
