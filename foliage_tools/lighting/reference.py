@@ -1,0 +1,808 @@
+"""Monte Carlo reference: light transport through the actual leaf and wood triangles.
+
+The ground truth every other method is compared with (DESIGN.md sections 3
+and 4). Photons are traced with Embree (:mod:`foliage_tools.geometry.rays`)
+through the scene's triangles; leaves are two-sided Lambertian scatterers
+(reflectance r and transmittance t per RGB channel), wood is opaque
+Lambertian (reflectance ρ); there is no ground.
+
+Sources
+-------
+* **Sun**: a parallel beam along ``-sun_direction`` with irradiance 1 on a
+  plane perpendicular to it. Photon origins are uniform over a rectangle
+  perpendicular to the sun that covers the projection of the scene's bounding
+  box (enlarged by 1e-3 of its diagonal), placed beyond the scene; every sun
+  photon carries power ``area(rectangle) / paths`` in each channel.
+* **Sky** (optional): radiance ``sky_radiance`` (RGB, sr⁻¹ per unit sun
+  irradiance) from every direction of the hemisphere about ``up``, zero from
+  below. A direction ω is drawn uniformly on the hemisphere (pdf 1/2π) and the
+  photon's origin uniformly on a disc of radius R perpendicular to ω (R: the
+  bounding sphere), placed outside the scene; power per photon
+  ``L · 2π · πR² / sky_paths``. (Each direction contributes a parallel beam
+  of irradiance L dω on the disc, so a horizontal plane receives π L, the
+  uniform-sky irradiance.)
+* In a **periodic** layer (``period`` set, ``up`` = +z) photons enter through
+  the top of one cell: sun photons at uniform (x, y) with power
+  ``μ0 · px · py / paths`` (μ0 = sun·up, the horizontal irradiance), sky
+  photons with cosine-distributed directions and power ``π L px py / sky_paths``.
+
+Scattering and weights (why RGB weights, and why no bounce cap)
+---------------------------------------------------------------
+Each photon carries an RGB power vector W, so the three channels share one
+geometric path: one set of rays instead of three, and the channels' errors
+are correlated, which keeps colour ratios smooth. At a hit with per-channel
+reflectance r, transmittance t (wood: r = ρ, t = 0) one of three events is
+drawn with probabilities proportional to the channel sums
+
+    a_r = Σ_c W_c r_c,   a_t = Σ_c W_c t_c,   a_a = Σ_c W_c (1 - r_c - t_c),
+
+and the weight becomes W r (a/a_r), W t (a/a_t) or is deposited as absorbed
+power W (1 - r - t) (a/a_a), with a = a_r + a_t + a_a = Σ_c W_c. Each
+channel's expectation is exactly the analog one (E[W'] = W r + W t,
+E[absorbed] = W (1 - r - t)), so the estimator is unbiased. The absorption
+event *is* the Russian roulette: it ends paths with the probability of
+absorption, there is no bounce cap, and the channel sum Σ_c W_c never changes
+along a path (each photon's total launched power ends up, in full, either
+absorbed somewhere or escaped), so weights stay bounded by that sum -- no
+fireflies. Per channel, energy balance holds in expectation; summed over the
+channels it holds per path, exactly up to rounding. (A safety limit,
+``max_events``, abandons paths that have scattered 1e5 times -- reachable only
+in closed geometry with albedo 1 -- and reports them in ``truncated``.) The
+price of one path for three channels: a channel much darker than the others
+(blue in the geist2008 preset) is sampled through paths chosen for the
+brighter ones, so its relative noise is larger than if it were traced alone.
+
+A reflected photon leaves into the hemisphere on its incident side, a
+transmitted one into the other, both cosine-distributed about the leaf
+normal (Lambertian). New rays start ``offset_distance`` off the surface on
+the side they leave to (see :mod:`foliage_tools.geometry.rays`).
+
+Tallies (per leaf, RGB; powers in sun-irradiance × stage-unit²)
+--------------------------------------------------------------
+Every time a photon arrives at a leaf, its power W (before the event) is added
+to one of four tallies, chosen by the photon's source and whether it has been
+scattered before; each is divided by the leaf's one-sided area:
+
+* ``e_direct``: sun photons on their first hit. Power intercepted by the leaf
+  from the unscattered beam / area = the unscattered sun irradiance on both
+  faces summed, area-averaged (DESIGN.md section 3); an unshadowed leaf with
+  normal n gets |n·s|.
+* ``e_scattered``: sun photons scattered at least once (by leaves or wood):
+  irradiance from scattered sunlight, both faces summed, area-averaged.
+* ``e_sky``: sky photons on their first hit (unscattered sky light; an
+  isolated leaf of any orientation gets π L).
+* ``e_sky_scattered``: sky photons scattered at least once.
+
+DESIGN.md's E_direct is *unscattered sun* light, so unscattered sky light is
+kept out of both E_direct and E_scattered, and E_scattered is sunlight only:
+a sun-only method compares with (e_direct, e_scattered) whatever the sky.
+:attr:`ReferenceResult.e_total` sums all four.
+
+Also tallied: ``absorbed`` power per leaf, ``absorbed_wood``, ``escaped``
+power (photons that leave the scene, including those that never hit
+anything), and ``incident`` (power launched = rectangle/disc areas times
+irradiance). ``absorbed.sum(0) + absorbed_wood + escaped = incident`` in
+expectation per channel, and exactly (to rounding) summed over channels.
+
+Determinism and threads
+-----------------------
+Paths are split into fixed batches (sizes depend only on ``paths`` and
+``batch_size``), each with its own generator from
+``np.random.SeedSequence(seed).spawn``; batches run on a thread pool and their
+tallies are reduced in batch order. Results are therefore bitwise identical
+for a seed, whatever the number of workers. The per-bounce work runs without
+the GIL (Embree's traversal in embreex, the numba kernel that tallies and
+scatters, numpy's random fills), so batches overlap on several cores.
+
+Noise estimate
+--------------
+The batches are split into two independent halves A (even batch indices,
+N_A paths) and B (odd, N_B). Let a and b be the E_scattered estimates of each
+half alone (each normalised as a full estimate) and x = (N_A a + N_B b)/N the
+full-run result. Per element, Var(a) = v N/N_A and Var(b) = v N/N_B, where v
+is the variance of x, so E‖a - b‖² = N (1/N_A + 1/N_B) Σ v. The full run's
+relative RMS noise, in the same form as the error measure of DESIGN.md
+(sqrt(Σ (x - E x)²/Σ (E x)²)), is therefore estimated as
+
+    noise_rel = ‖a - b‖ / (sqrt(N/N_A + N/N_B) ‖x‖),
+
+which for equal halves is ‖a - b‖ / (2‖x‖) = ‖a - b‖ / ‖a + b‖ (the form of
+:func:`foliage_tools.bench.metrics.noise_floor`).
+An exact method would show a relative RMS error ≈ noise_rel against this reference.
+
+Caveats: it is an estimate from a single pair of halves, so its own relative
+spread is about 1/sqrt(2K) for K effectively independent leaf values (a few %
+for hundreds of leaves, but meaningless for a handful: with one lit leaf it
+can be off by a factor of several); and ‖x‖ contains the noise too, so at
+large noise (≳ 20 %) it reads a few % low.
+
+Pure numerics: no files, no printing.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import time
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from foliage_tools.geometry.rays import PeriodicRayScene, RayScene
+from foliage_tools.lighting.optics import LeafOptics
+
+__all__ = ["ReferenceInputs", "ReferenceParams", "ReferenceResult", "solve"]
+
+#: Tally categories (index into the per-leaf incidence tallies).
+_SUN_DIRECT, _SUN_SCATTERED, _SKY_DIRECT, _SKY_SCATTERED = range(4)
+
+#: Relative enlargement of the sun rectangle / sky disc beyond the scene's
+#: bounds, so that float rounding never lets geometry at the very edge miss.
+_SOURCE_MARGIN = 1e-3
+
+
+def _unit(v, name: str) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64).reshape(-1)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be 3 finite numbers, got {v!r}")
+    n = float(np.linalg.norm(a))
+    if n == 0.0:
+        raise ValueError(f"{name} must not be the zero vector")
+    a = a / n
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class ReferenceInputs:
+    """The scene as the Monte Carlo reference sees it (world space, plain arrays)."""
+
+    triangles: np.ndarray
+    """(T, 3, 3) float64 triangle vertices, world space (stage units)."""
+    leaf_of_triangle: np.ndarray
+    """(T,) int: leaf index 0..L-1 of each triangle, -1 for wood."""
+    leaf_area: np.ndarray
+    """(L,) one-sided area of each leaf (stage units²), > 0. Its length is the number of leaves L."""
+    optics: LeafOptics
+    """Leaf reflectance / transmittance and wood reflectance (RGB)."""
+    sun_direction: np.ndarray
+    """(3,) direction *toward* the sun (normalised on construction)."""
+    sky_radiance: np.ndarray = (0.0, 0.0, 0.0)
+    """(3,) uniform radiance of the upper hemisphere about ``up``, per unit sun irradiance (sr⁻¹), ≥ 0."""
+    up: np.ndarray = (0.0, 0.0, 1.0)
+    """(3,) the up direction (normalised on construction); defines the sky hemisphere."""
+    period: tuple[float, float] | None = None
+    """If set, (px, py): the geometry is one cell of an infinite layer repeated along x and y
+    (requires ``up`` = +z and the sun above the horizon). For tests against plane-parallel solvers."""
+    cell_origin: tuple[float, float] = (0.0, 0.0)
+    """Lower (x, y) corner of the periodic cell."""
+
+    def __post_init__(self) -> None:
+        tri = np.asarray(self.triangles, dtype=np.float64)
+        if tri.ndim != 3 or tri.shape[1:] != (3, 3):
+            raise ValueError(f"triangles must have shape (T, 3, 3), got {tri.shape}")
+        if not np.all(np.isfinite(tri)):
+            raise ValueError("triangles contain NaN or infinite coordinates")
+        leaf = np.asarray(self.leaf_of_triangle)
+        if leaf.shape != (tri.shape[0],) or not np.issubdtype(leaf.dtype, np.integer):
+            raise ValueError(
+                f"leaf_of_triangle must be (T,) = ({tri.shape[0]},) integers, got {leaf.shape} {leaf.dtype}"
+            )
+        area = np.asarray(self.leaf_area, dtype=np.float64).reshape(-1)
+        if not np.all(np.isfinite(area)) or np.any(area <= 0):
+            raise ValueError("leaf_area must be positive and finite for every leaf")
+        leaf = leaf.astype(np.int64)
+        if leaf.size and (leaf.min() < -1 or leaf.max() >= area.size):
+            raise ValueError(
+                f"leaf_of_triangle must be -1 (wood) or a leaf index below L = {area.size} (len(leaf_area)), "
+                f"got values in [{leaf.min()}, {leaf.max()}]"
+            )
+        if not isinstance(self.optics, LeafOptics):
+            raise TypeError(f"optics must be a LeafOptics, got {type(self.optics).__name__}")
+        sky = np.asarray(self.sky_radiance, dtype=np.float64).reshape(-1)
+        if sky.shape == (1,):
+            sky = np.repeat(sky, 3)
+        if sky.shape != (3,) or not np.all(np.isfinite(sky)) or np.any(sky < 0):
+            raise ValueError(f"sky_radiance must be 1 or 3 finite numbers >= 0, got {self.sky_radiance!r}")
+        sun = _unit(self.sun_direction, "sun_direction")
+        up = _unit(self.up, "up")
+        for a in (tri, leaf, area, sky):
+            a.flags.writeable = False
+        object.__setattr__(self, "triangles", tri)
+        object.__setattr__(self, "leaf_of_triangle", leaf)
+        object.__setattr__(self, "leaf_area", area)
+        object.__setattr__(self, "sky_radiance", sky)
+        object.__setattr__(self, "sun_direction", sun)
+        object.__setattr__(self, "up", up)
+        if self.period is not None:
+            p = tuple(float(v) for v in np.asarray(self.period, dtype=np.float64).reshape(-1))
+            if len(p) != 2 or not all(math.isfinite(v) and v > 0 for v in p):
+                raise ValueError(f"period must be two positive numbers (px, py), got {self.period!r}")
+            if abs(up[2] - 1.0) > 1e-12:
+                raise ValueError(f"a periodic layer (period={p}) needs up = (0, 0, 1), got up = {tuple(up)}")
+            if sun[2] <= 0.0:
+                raise ValueError(
+                    f"a periodic layer (period={p}) needs the sun above the horizon, got sun_direction = {tuple(sun)}"
+                )
+            object.__setattr__(self, "period", p)
+            object.__setattr__(self, "cell_origin", tuple(float(v) for v in self.cell_origin))
+
+    @property
+    def n_leaves(self) -> int:
+        return int(self.leaf_area.shape[0])
+
+
+@dataclass(frozen=True)
+class ReferenceParams:
+    """How many photons, how they are split, and the seed."""
+
+    paths: int = 1_000_000
+    """Sun photon paths (≥ 2, or 0 for a sky-only run)."""
+    sky_paths: int | None = None
+    """Sky photon paths; None: ``paths`` if the sky radiance is non-zero, else 0.
+    Ignored (no sky photons) when the sky radiance is zero."""
+    seed: int = 0
+    """Seed of ``np.random.SeedSequence``; results are bitwise reproducible for a seed."""
+    workers: int | None = None
+    """Threads; None: ``os.cpu_count()``. Does not change the results."""
+    batch_size: int = 1 << 15
+    """Paths per batch (the unit of work, of seeding and of the two-halves noise split).
+    Changing it changes the random streams, hence the results (not their expectation)."""
+    max_events: int = 100_000
+    """Scattering events after which a path is abandoned and counted in ``truncated``
+    (only reachable in closed geometry with albedo 1; never silently: the result reports it)."""
+
+    def __post_init__(self) -> None:
+        for name in ("paths", "seed", "batch_size", "max_events"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise TypeError(f"{name} must be an integer, got {v!r}")
+        if self.paths < 0 or self.paths == 1:
+            raise ValueError(f"paths must be 0 or >= 2 (the noise estimate needs two halves), got {self.paths}")
+        if self.sky_paths is not None and (
+            isinstance(self.sky_paths, bool) or not isinstance(self.sky_paths, (int, np.integer)) or self.sky_paths < 0
+        ):
+            raise ValueError(f"sky_paths must be None or an integer >= 0, got {self.sky_paths!r}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {self.batch_size}")
+        if self.max_events < 1:
+            raise ValueError(f"max_events must be >= 1, got {self.max_events}")
+        if self.workers is not None and (
+            isinstance(self.workers, bool) or not isinstance(self.workers, (int, np.integer)) or self.workers < 1
+        ):
+            raise ValueError(f"workers must be None or an integer >= 1, got {self.workers!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class ReferenceResult:
+    """Per-leaf irradiance tallies of the Monte Carlo reference (see the module docstring)."""
+
+    e_direct: np.ndarray
+    """(L, 3) unscattered sun irradiance, both faces summed, area-averaged (sun irradiance = 1)."""
+    e_scattered: np.ndarray
+    """(L, 3) irradiance from sunlight scattered at least once, both faces summed, area-averaged."""
+    e_sky: np.ndarray
+    """(L, 3) unscattered sky irradiance, both faces summed, area-averaged."""
+    e_sky_scattered: np.ndarray
+    """(L, 3) irradiance from sky light scattered at least once, both faces summed, area-averaged."""
+    absorbed: np.ndarray
+    """(L, 3) power absorbed by each leaf (sun + sky; irradiance × stage-unit²)."""
+    absorbed_wood: np.ndarray
+    """(3,) power absorbed by wood."""
+    escaped: np.ndarray
+    """(3,) power leaving the scene (including photons that hit nothing)."""
+    incident: np.ndarray
+    """(3,) power launched by the sources (sun rectangle area + sky disc power)."""
+    hits: np.ndarray
+    """(L,) int64 number of sun-photon arrivals at each leaf (direct + scattered): a leaf with few
+    hits has a noisy estimate."""
+    paths: int
+    """Sun paths traced."""
+    sky_paths: int
+    """Sky paths traced."""
+    seconds: float
+    """Wall time of :func:`solve`."""
+    noise_rel: float
+    """Estimated relative RMS noise of ``e_scattered`` over leaves and channels,
+    sqrt(Σ Var)/‖E_scattered‖ (two halves, see the module docstring; 0 if E_scattered is
+    identically 0, NaN without sun paths). Unreliable for very few leaves."""
+    noise_rel_total: float
+    """The same for ``e_direct + e_scattered``."""
+    seed: int
+    """The seed used."""
+    workers: int
+    """Threads used (does not affect the values)."""
+    truncated: int
+    """Paths abandoned (``max_events`` reached, or a periodic ray crossing too many cells); 0 normally."""
+
+    @property
+    def e_total(self) -> np.ndarray:
+        """(L, 3) all irradiance: e_direct + e_scattered + e_sky + e_sky_scattered."""
+        return self.e_direct + self.e_scattered + self.e_sky + self.e_sky_scattered
+
+
+# --------------------------------------------------------------------------
+# sampling helpers
+# --------------------------------------------------------------------------
+
+
+def _onb(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing unit normals n (K, 3) to orthonormal bases.
+
+    Duff et al. 2017, "Building an Orthonormal Basis, Revisited", JCGT 6(1), listing 3.
+    """
+    sign = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    t1 = np.stack([1.0 + sign * n[:, 0] * n[:, 0] * a, sign * b, -sign * n[:, 0]], axis=1)
+    t2 = np.stack([b, sign + n[:, 1] * n[:, 1] * a, -n[:, 1]], axis=1)
+    return t1, t2
+
+
+def _cosine_directions(axis: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """Cosine-distributed unit directions about unit ``axis`` (K, 3) (Malley's method:
+    uniform on the unit disc, projected up to the hemisphere)."""
+    r = np.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    z = np.sqrt(np.maximum(0.0, 1.0 - u1))
+    t1, t2 = _onb(axis)
+    return (r * np.cos(phi))[:, None] * t1 + (r * np.sin(phi))[:, None] * t2 + z[:, None] * axis
+
+
+def _uniform_hemisphere(axis: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """Directions uniform (pdf 1/2π) on the hemisphere about one unit ``axis`` (3,)."""
+    z = u1
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = 2.0 * math.pi * u2
+    t1, t2 = _onb(axis[None, :])
+    return (r * np.cos(phi))[:, None] * t1 + (r * np.sin(phi))[:, None] * t2 + z[:, None] * axis[None, :]
+
+
+# --------------------------------------------------------------------------
+# sources: (origins, directions, weights) for k photons
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """What the sources need to know about the scene."""
+
+    centre: np.ndarray  # (3,) bounding-box centre
+    corners: np.ndarray  # (8, 3) bounding-box corners
+    radius: float  # bounding-sphere radius (about centre), with margin
+    period: tuple[float, float] | None
+    cell_origin: tuple[float, float]
+    z_top: float
+
+
+class _SunSource:
+    """Parallel beam along -s, irradiance 1 perpendicular to it."""
+
+    def __init__(self, geo: _Geometry, sun: np.ndarray, paths: int) -> None:
+        self.sun = sun
+        self.geo = geo
+        if geo.period is None:
+            u, v = _onb(sun[None, :])
+            self.u, self.v = u[0], v[0]
+            rel = geo.corners - geo.centre
+            pu, pv, ps = rel @ self.u, rel @ self.v, rel @ sun
+            margin = _SOURCE_MARGIN * max(2.0 * geo.radius, 1e-30)
+            self.lo = np.array([pu.min(), pv.min()]) - margin
+            self.hi = np.array([pu.max(), pv.max()]) + margin
+            self.height = ps.max() + margin
+            area = float(np.prod(self.hi - self.lo))
+        else:
+            px, py = geo.period
+            area = float(sun[2]) * px * py  # horizontal irradiance μ0 on the cell
+        self.power = area  # per channel
+        self.weight = area / paths if paths else 0.0
+
+    def emit(self, rng: np.random.Generator, k: int):
+        uv = rng.random((k, 2))
+        if self.geo.period is None:
+            a = self.lo + uv * (self.hi - self.lo)
+            o = self.geo.centre + a[:, :1] * self.u + a[:, 1:] * self.v + self.height * self.sun
+        else:
+            px, py = self.geo.period
+            o = np.empty((k, 3))
+            o[:, 0] = self.geo.cell_origin[0] + uv[:, 0] * px
+            o[:, 1] = self.geo.cell_origin[1] + uv[:, 1] * py
+            o[:, 2] = self.geo.z_top
+        d = np.broadcast_to(-self.sun, (k, 3)).copy()
+        w = np.full((k, 3), self.weight)
+        return o, d, w
+
+
+class _SkySource:
+    """Uniform radiance L over the hemisphere about ``up``."""
+
+    def __init__(self, geo: _Geometry, up: np.ndarray, radiance: np.ndarray, paths: int) -> None:
+        self.geo = geo
+        self.up = up
+        if geo.period is None:
+            # ∫_hemisphere L dω over a disc πR² perpendicular to each direction
+            self.power = radiance * 2.0 * math.pi * math.pi * geo.radius**2
+        else:
+            px, py = geo.period
+            self.power = radiance * math.pi * px * py  # horizontal irradiance π L on the cell
+        self.weight = self.power / paths if paths else np.zeros(3)
+
+    def emit(self, rng: np.random.Generator, k: int):
+        u = rng.random((k, 4))
+        w = np.broadcast_to(self.weight, (k, 3)).copy()
+        if self.geo.period is None:
+            omega = _uniform_hemisphere(self.up, u[:, 0], u[:, 1])
+            t1, t2 = _onb(omega)
+            r = self.geo.radius * np.sqrt(u[:, 2])
+            phi = 2.0 * math.pi * u[:, 3]
+            o = (
+                self.geo.centre
+                + self.geo.radius * (1.0 + _SOURCE_MARGIN) * omega
+                + (r * np.cos(phi))[:, None] * t1
+                + (r * np.sin(phi))[:, None] * t2
+            )
+        else:
+            omega = _cosine_directions(np.broadcast_to(self.up, (k, 3)), u[:, 0], u[:, 1])
+            px, py = self.geo.period
+            o = np.empty((k, 3))
+            o[:, 0] = self.geo.cell_origin[0] + u[:, 2] * px
+            o[:, 1] = self.geo.cell_origin[1] + u[:, 3] * py
+            o[:, 2] = self.geo.z_top
+        return o, -omega, w
+
+
+# --------------------------------------------------------------------------
+# the path loop of one batch
+# --------------------------------------------------------------------------
+
+
+@njit(nogil=True, cache=True)
+def _process_hits(
+    tri, pts, d, w, scattered, leaf_of_tri, normals, refl, trans, absp, u, offset, first_category, count_hits,
+    incidence, absorbed, absorbed_wood, escaped, hits, o_out, d_out, w_out,
+):
+    """Tally one bounce of k photons and draw their events; survivors are written compactly.
+
+    For photon i: a miss adds w[i] to ``escaped``; a hit on a leaf adds w[i]
+    to ``incidence[leaf * 4 + category]`` (category: first_category + scattered),
+    then one of reflect / transmit / absorb is drawn with probabilities
+    proportional to Σ_c w_c r_c, Σ_c w_c t_c, Σ_c w_c (1 - r_c - t_c) (module
+    docstring), using u[i, 0]; a survivor gets a cosine-distributed direction
+    from u[i, 1:3] (Malley's method, Duff et al. 2017 basis) about the normal on
+    the side it leaves to, and starts ``offset`` off the surface on that side.
+    Runs without the GIL so that batches on several threads overlap.
+    Returns the number of survivors.
+    """
+    k = tri.shape[0]
+    m = 0
+    for i in range(k):
+        j = tri[i]
+        if j < 0:
+            for c in range(3):
+                escaped[c] += w[i, c]
+            continue
+        leaf = leaf_of_tri[j]
+        if leaf >= 0:
+            key = leaf * 4 + first_category + (1 if scattered[i] else 0)
+            for c in range(3):
+                incidence[key, c] += w[i, c]
+            if count_hits:
+                hits[leaf] += 1
+        a_r = 0.0
+        a_t = 0.0
+        a_a = 0.0
+        for c in range(3):
+            a_r += w[i, c] * refl[j, c]
+            a_t += w[i, c] * trans[j, c]
+            a_a += w[i, c] * absp[j, c]
+        total = a_r + a_t + a_a
+        x = u[i, 0] * total
+        if x < a_r:
+            mode = 0
+        elif x < a_r + a_t:
+            mode = 1
+        else:
+            mode = 2
+        if mode == 2:
+            f = total / a_a
+            for c in range(3):
+                dep = w[i, c] * absp[j, c] * f
+                if leaf >= 0:
+                    absorbed[leaf, c] += dep
+                else:
+                    absorbed_wood[c] += dep
+            continue
+        nx, ny, nz = normals[j, 0], normals[j, 1], normals[j, 2]
+        # side the photon came from: against its direction
+        side = 1.0 if nx * d[i, 0] + ny * d[i, 1] + nz * d[i, 2] <= 0.0 else -1.0
+        if mode == 1:
+            side = -side
+        ax, ay, az = side * nx, side * ny, side * nz
+        if mode == 0:
+            f = total / a_r
+            for c in range(3):
+                w_out[m, c] = w[i, c] * refl[j, c] * f
+        else:
+            f = total / a_t
+            for c in range(3):
+                w_out[m, c] = w[i, c] * trans[j, c] * f
+        # orthonormal basis about (ax, ay, az): Duff et al. 2017, JCGT 6(1), listing 3
+        sg = 1.0 if az >= 0.0 else -1.0
+        aa = -1.0 / (sg + az)
+        bb = ax * ay * aa
+        t1x, t1y, t1z = 1.0 + sg * ax * ax * aa, sg * bb, -sg * ax
+        t2x, t2y, t2z = bb, sg + ay * ay * aa, -ay
+        rr = math.sqrt(u[i, 1])
+        phi = 2.0 * math.pi * u[i, 2]
+        zz = math.sqrt(max(0.0, 1.0 - u[i, 1]))
+        cx, cy = rr * math.cos(phi), rr * math.sin(phi)
+        d_out[m, 0] = cx * t1x + cy * t2x + zz * ax
+        d_out[m, 1] = cx * t1y + cy * t2y + zz * ay
+        d_out[m, 2] = cx * t1z + cy * t2z + zz * az
+        o_out[m, 0] = pts[i, 0] + offset * ax
+        o_out[m, 1] = pts[i, 1] + offset * ay
+        o_out[m, 2] = pts[i, 2] + offset * az
+        m += 1
+    return m
+
+
+
+@dataclass
+class _Tally:
+    incidence: np.ndarray  # (4 L, 3): [leaf * 4 + category]
+    absorbed: np.ndarray  # (L, 3)
+    absorbed_wood: np.ndarray  # (3,)
+    escaped: np.ndarray  # (3,)
+    hits: np.ndarray  # (L,) int64
+    truncated: int
+
+    @classmethod
+    def zeros(cls, n_leaves: int) -> _Tally:
+        return cls(
+            np.zeros((4 * n_leaves, 3)), np.zeros((n_leaves, 3)), np.zeros(3), np.zeros(3),
+            np.zeros(n_leaves, dtype=np.int64), 0,
+        )
+
+    def add(self, other: _Tally) -> None:
+        self.incidence += other.incidence
+        self.absorbed += other.absorbed
+        self.absorbed_wood += other.absorbed_wood
+        self.escaped += other.escaped
+        self.hits += other.hits
+        self.truncated += other.truncated
+
+
+class _Tracer:
+    """Everything a batch needs, shared read-only between threads."""
+
+    def __init__(self, inputs: ReferenceInputs, max_events: int) -> None:
+        self.periodic = inputs.period is not None
+        if self.periodic:
+            self.scene = PeriodicRayScene(inputs.triangles, period=inputs.period, origin=inputs.cell_origin)
+        else:
+            self.scene = RayScene(inputs.triangles)
+        self.normals = self.scene.normals
+        self.offset = self.scene.offset_distance()
+        self.leaf = inputs.leaf_of_triangle
+        self.n_leaves = inputs.n_leaves
+        opt = inputs.optics
+        # per-triangle r and t: leaves (r, t), wood (ρ, 0)
+        is_wood = self.leaf < 0
+        self.r = np.where(is_wood[:, None], opt.wood_reflectance[None, :], opt.reflectance[None, :])
+        self.t = np.where(is_wood[:, None], 0.0, opt.transmittance[None, :])
+        self.a = np.maximum(0.0, 1.0 - self.r - self.t)
+        self.max_events = max_events
+
+    def first_hits(self, o, d):
+        """(tri_id, hit points) for rays; -1 / undefined points for escapes."""
+        if self.periodic:
+            h = self.scene.intersect(o, d)
+            return h.tri_id, h.points, h.truncated
+        tri, t = self.scene.intersect(o, d)
+        pts = o + np.where(tri >= 0, t, 0.0)[:, None] * d
+        return tri, pts, None
+
+    def run(self, source, rng: np.random.Generator, k: int, sky: bool) -> _Tally:
+        tally = _Tally.zeros(self.n_leaves)
+        escaped = np.zeros(3)
+        o, d, w = source.emit(rng, k)
+        scattered = np.zeros(k, dtype=bool)
+        first_category = _SKY_DIRECT if sky else _SUN_DIRECT
+        o_out, d_out, w_out = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
+        for _ in range(self.max_events + 1):
+            n = o.shape[0]
+            if n == 0:
+                break
+            tri, pts, trunc = self.first_hits(o, d)
+            if trunc is not None and np.any(trunc):
+                tally.truncated += int(trunc.sum())
+                keep = ~trunc
+                d, w, scattered, tri, pts = d[keep], w[keep], scattered[keep], tri[keep], pts[keep]
+                n = tri.shape[0]
+            u = rng.random((n, 3))
+            m = _process_hits(
+                tri, pts, d, w, scattered, self.leaf, self.normals, self.r, self.t, self.a, u, self.offset,
+                first_category, not sky, tally.incidence, tally.absorbed, tally.absorbed_wood, escaped,
+                tally.hits, o_out, d_out, w_out,
+            )
+            o, d, w = o_out[:m].copy(), d_out[:m].copy(), w_out[:m].copy()
+            scattered = np.ones(m, dtype=bool)
+        else:
+            tally.truncated += int(o.shape[0])
+        tally.escaped += escaped
+        return tally
+
+
+# --------------------------------------------------------------------------
+# public entry point
+# --------------------------------------------------------------------------
+
+
+def _batches(paths: int, batch_size: int) -> list[int]:
+    """Batch sizes: at least 2 batches (two halves) when paths > 0, as even as possible."""
+    if paths == 0:
+        return []
+    n = max(2, -(-paths // batch_size))
+    return [paths // n + (1 if i < paths % n else 0) for i in range(n)]
+
+
+def _geometry(inputs: ReferenceInputs, z_top: float | None) -> _Geometry:
+    tri = inputs.triangles
+    if tri.shape[0]:
+        lo = tri.reshape(-1, 3).min(axis=0)
+        hi = tri.reshape(-1, 3).max(axis=0)
+    else:
+        lo = hi = np.zeros(3)
+    centre = 0.5 * (lo + hi)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    half_diag = 0.5 * float(np.linalg.norm(hi - lo))
+    radius = max(half_diag, 1e-30) * (1.0 + _SOURCE_MARGIN)
+    return _Geometry(centre, corners, radius, inputs.period, inputs.cell_origin, z_top if z_top is not None else hi[2])
+
+
+def _noise(half_a: np.ndarray, half_b: np.ndarray, n_a: int, n_b: int, area: np.ndarray) -> float:
+    """Relative RMS noise of the full run from two halves (see the module docstring)."""
+    n = n_a + n_b
+    full = (half_a + half_b) / area[:, None]
+    a = half_a * (n / n_a) / area[:, None]
+    b = half_b * (n / n_b) / area[:, None]
+    den = float(np.linalg.norm(full))
+    if den == 0.0:
+        return 0.0
+    return float(np.linalg.norm(a - b)) / (math.sqrt(n / n_a + n / n_b) * den)
+
+
+def solve(
+    inputs: ReferenceInputs,
+    params: ReferenceParams = ReferenceParams(),
+    *,
+    progress: Callable[[int, int], None] | None = None,
+) -> ReferenceResult:
+    """Trace sun (and sky) photons through the scene and tally per-leaf irradiance.
+
+    Parameters
+    ----------
+    inputs : ReferenceInputs
+        Triangles, leaf ids and areas, optics, sun, sky.
+    params : ReferenceParams
+        Path counts, seed, threads, batch size.
+    progress : callable, optional
+        ``progress(done, total)`` in paths (sun + sky), called from the calling
+        thread after each batch, in batch order.
+
+    Returns
+    -------
+    ReferenceResult
+        Tallies as defined in the module docstring, with wall time and the
+        two-halves noise estimate.
+    """
+    start = time.perf_counter()
+    if not isinstance(inputs, ReferenceInputs):
+        raise TypeError(f"inputs must be a ReferenceInputs, got {type(inputs).__name__}")
+    if not isinstance(params, ReferenceParams):
+        raise TypeError(f"params must be a ReferenceParams, got {type(params).__name__}")
+    has_sky = bool(np.any(inputs.sky_radiance > 0))
+    sky_paths = (params.paths if has_sky else 0) if params.sky_paths is None else int(params.sky_paths)
+    if has_sky and sky_paths < 2:
+        raise ValueError(
+            f"sky_radiance is {tuple(inputs.sky_radiance)} but sky_paths = {sky_paths}: give sky_paths >= 2 "
+            "or a zero sky radiance"
+        )
+    if params.paths + sky_paths == 0:
+        raise ValueError("nothing to trace: paths and sky_paths are both 0")
+    workers = int(params.workers) if params.workers is not None else max(1, os.cpu_count() or 1)
+    tracer = _Tracer(inputs, params.max_events)
+    z_top = tracer.scene.z_range[1] if tracer.periodic else None
+    geo = _geometry(inputs, z_top)
+    sun_sizes = _batches(params.paths, params.batch_size)
+    sky_sizes = _batches(sky_paths, params.batch_size) if has_sky else []
+    sun = _SunSource(geo, inputs.sun_direction, params.paths)
+    sky = _SkySource(geo, inputs.up, inputs.sky_radiance, sky_paths) if has_sky else None
+    root_sun, root_sky = np.random.SeedSequence(params.seed).spawn(2)
+    tasks = [(sun, s, size, False, i) for i, (s, size) in enumerate(zip(root_sun.spawn(len(sun_sizes)), sun_sizes))]
+    tasks += [(sky, s, size, True, i) for i, (s, size) in enumerate(zip(root_sky.spawn(len(sky_sizes)), sky_sizes))]
+    total_paths = params.paths + (sky_paths if has_sky else 0)
+
+    def run(task) -> _Tally:
+        source, seq, size, is_sky, _ = task
+        return tracer.run(source, np.random.default_rng(seq), size, is_sky)
+
+    n_leaves = inputs.n_leaves
+    halves = [_Tally.zeros(n_leaves), _Tally.zeros(n_leaves)]
+    half_paths = [0, 0]
+    done = 0
+    pool = ThreadPoolExecutor(max_workers=workers)
+    pending: deque = deque()
+    queue = iter(tasks)
+    try:
+        # A bounded window of batches in flight, consumed in submission order:
+        # the reduction order is fixed (determinism) and an exception (or
+        # Ctrl-C in the progress callback) cancels what has not started.
+        for task in itertools.islice(queue, 2 * workers):
+            pending.append((task, pool.submit(run, task)))
+        while pending:
+            task, future = pending.popleft()
+            tally = future.result()
+            for nxt in itertools.islice(queue, 1):
+                pending.append((nxt, pool.submit(run, nxt)))
+            _, _, size, is_sky, index = task
+            halves[index % 2].add(tally)
+            if not is_sky:
+                half_paths[index % 2] += size
+            done += size
+            if progress is not None:
+                progress(done, total_paths)
+    finally:
+        for _, future in pending:
+            future.cancel()
+        pool.shutdown(wait=True)
+    full = _Tally.zeros(n_leaves)
+    full.add(halves[0])
+    full.add(halves[1])
+    area = inputs.leaf_area
+    inc = full.incidence.reshape(n_leaves, 4, 3) / area[:, None, None]
+    if params.paths:
+        ha = halves[0].incidence.reshape(n_leaves, 4, 3)
+        hb = halves[1].incidence.reshape(n_leaves, 4, 3)
+        noise = _noise(ha[:, _SUN_SCATTERED], hb[:, _SUN_SCATTERED], half_paths[0], half_paths[1], area)
+        noise_total = _noise(
+            ha[:, _SUN_DIRECT] + ha[:, _SUN_SCATTERED], hb[:, _SUN_DIRECT] + hb[:, _SUN_SCATTERED],
+            half_paths[0], half_paths[1], area,
+        )
+    else:
+        noise = noise_total = math.nan
+    incident = np.full(3, sun.power if params.paths else 0.0)
+    if sky is not None:
+        incident = incident + sky.power
+
+    def frozen(a):
+        a = np.ascontiguousarray(a)
+        a.flags.writeable = False
+        return a
+
+    return ReferenceResult(
+        e_direct=frozen(inc[:, _SUN_DIRECT]),
+        e_scattered=frozen(inc[:, _SUN_SCATTERED]),
+        e_sky=frozen(inc[:, _SKY_DIRECT]),
+        e_sky_scattered=frozen(inc[:, _SKY_SCATTERED]),
+        absorbed=frozen(full.absorbed),
+        absorbed_wood=frozen(full.absorbed_wood),
+        escaped=frozen(full.escaped),
+        incident=frozen(incident),
+        hits=frozen(full.hits),
+        paths=int(params.paths),
+        sky_paths=int(sky_paths if has_sky else 0),
+        seconds=time.perf_counter() - start,
+        noise_rel=noise,
+        noise_rel_total=noise_total,
+        seed=int(params.seed),
+        workers=workers,
+        truncated=int(full.truncated),
+    )
