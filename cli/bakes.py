@@ -64,3 +64,121 @@ def smax(scene: Path, out: Path, path_: str, sun: str | None, leaf_optics: str |
         return 0
 
     run(body)
+
+
+@click.command()
+@SCENE
+@OUT
+@click.option("--paths", type=click.IntRange(min=2), default=1_000_000, show_default=True,
+              help="Sun photon paths (the sky gets as many when the stage has a DomeLight). Noise falls as 1/sqrt(paths).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed; results are bitwise reproducible for a seed.")
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Threads [default: all cores]; does not change the results.")
+@bake_options
+@common_options
+def reference(scene: Path, out: Path, paths: int, seed: int, workers: int | None, sun: str | None, leaf_optics: str | None,
+              wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
+    """Monte Carlo ground truth: trace light through the actual leaves and wood (Embree).
+
+    Two-sided Lambertian leaves, opaque Lambertian wood, the sun as parallel
+    rays of irradiance 1 and the sky from the DomeLight; unbiased (Russian
+    roulette), seeded. Writes per-leaf E_direct and E_scattered (both faces
+    summed) as primvars:foliage:ref:direct / :scattered, and reports its own
+    noise (relative RMS, from two independent halves).
+
+    \b
+    Example:
+      foliage reference examples/tree_small.usda -o out/tree.ref.usda --paths 4000000 --seed 1
+    """
+    from foliage_tools.geometry.sun import parse_sun
+    from foliage_tools.pipeline.reference import ReferenceParams, run_reference
+
+    def body() -> int:
+        setup_logging(verbose, quiet)
+        params = ReferenceParams(
+            optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
+            sun=parse_sun(sun) if sun is not None else None,
+            paths=paths, seed=seed, workers=workers,
+        )
+        with console.RichProgress(enabled=not (quiet or as_json)) as progress:
+            report = run_reference(scene, out, params, progress=progress)
+        if as_json:
+            console.print_json(report.as_json())
+            return 0
+        console.warn(report.warnings, quiet)
+        if not quiet:
+            s = report.stats
+            console.stdout.print(
+                f"{s['paths']:,} sun + {s['sky_paths']:,} sky paths on {s['workers']} worker(s) in {report.seconds:.2f} s; "
+                f"{s['leaves']} leaves; noise (rel. RMS of E_scattered) {s['noise_rel']:.3f}", highlight=False, soft_wrap=True)
+            console.stdout.print(
+                f"mean E_direct (RGB) {', '.join(f'{v:.4g}' for v in s['e_direct_mean'])}; "
+                f"mean E_scattered {', '.join(f'{v:.4g}' for v in s['e_scattered_mean'])}", highlight=False, soft_wrap=True)
+            for o in report.outputs:
+                console.stdout.print(f"wrote {o}", highlight=False)
+        return 0
+
+    run(body)
+
+
+@click.command()
+@SCENE
+@click.option("--methods", "methods_", default=None, metavar="NAME,...", help="Methods to run [default: every available one].")
+@click.option("--plot", type=click.Path(path_type=Path, dir_okay=False), default=None, help="Write a log-log speed-vs-error plot (PNG/SVG/PDF).")
+@click.option("--paths", type=click.IntRange(min=2), default=4_000_000, show_default=True, help="Reference Monte Carlo sun paths.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Reference seed.")
+@bake_options
+@common_options
+def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed: int, sun: str | None, leaf_optics: str | None,
+          wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
+    """Speed against error: every available method against the Monte Carlo reference.
+
+    For each method: seconds, relative RMS error of E_scattered and of the
+    total (E_direct + E_scattered) over all leaves of all instances, and the
+    depth-thickness binned error of shinya2013 eq. 30 — with the reference's
+    own noise beside them (an exact method would score about that). Methods
+    that have not landed are listed as unavailable.
+
+    \b
+    Example:
+      foliage bench examples/tree_small.usda --plot out/bench.png --json > out/bench.json
+    """
+    from foliage_tools.geometry.sun import parse_sun
+    from foliage_tools.pipeline.bench import BenchParams, run_bench
+
+    def body() -> int:
+        setup_logging(verbose, quiet)
+        params = BenchParams(
+            optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
+            sun=parse_sun(sun) if sun is not None else None,
+            methods=tuple(n.strip() for n in methods_.split(",") if n.strip()) if methods_ else None,
+            paths=paths, seed=seed,
+        )
+        with console.RichProgress(enabled=not (quiet or as_json)) as progress:
+            report = run_bench(scene, params, progress=progress)
+        if plot is not None:
+            from foliage_tools.bench.plot import write_plot
+
+            report.outputs.append(str(write_plot(plot, report.stats, f"{scene.name}: {report.stats['leaves']} leaves")))
+        if as_json:
+            console.print_json(report.as_json())
+            return 0
+        console.warn(report.warnings, quiet)
+        if not quiet:
+            s = report.stats
+            ref = s["reference"]
+            table = Table(title=f"{escape(str(scene))}: {s['leaves']} leaves, sun az {s['sun']['azimuth']:.0f}° el {s['sun']['elevation']:.0f}°")
+            for col in ("method", "seconds", "rel. RMS E_scattered", "rel. RMS total", "binned RMS (eq. 30)"):
+                table.add_column(col, justify="left" if col == "method" else "right")
+            table.add_row("reference (MC)", f"{ref['seconds']:.2f}", f"noise {ref['noise_rel']:.3f}", f"noise {ref['noise_rel_total']:.3f}", "")
+            for m in s["methods"]:
+                if not m["available"]:
+                    table.add_row(escape(m["name"]), "not available", "", "", "")
+                    continue
+                cells = ["n/a" if m[k] is None else f"{m[k]:.3f}" for k in ("rel_rms_scattered", "rel_rms_total", "binned_rms")]
+                table.add_row(escape(m["name"]), f"{m['seconds']:.3f}", *cells)
+            console.stdout.print(table)
+            for o in report.outputs:
+                console.stdout.print(f"wrote {o}", highlight=False)
+        return 0
+
+    run(body)

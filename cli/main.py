@@ -180,9 +180,10 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
 
 
 def _add_commands() -> None:
-    from foliage_tools.cli.bakes import smax
+    from foliage_tools.cli.bakes import bench, reference, smax
 
-    cli.add_command(smax)
+    for command in (smax, reference, bench):
+        cli.add_command(command)
 
 
 _add_commands()

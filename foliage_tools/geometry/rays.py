@@ -379,3 +379,46 @@ class PeriodicRayScene:
             truncated[active] = True
         points = np.where(tri_id[:, None] >= 0, self.wrap(np.nan_to_num(points)), np.nan)
         return PeriodicHits(tri_id, t_total, points, truncated)
+
+
+def count_crossings(
+    scene: RayScene, origins, direction, *, skip_ids=None, id_of_triangle=None, max_hits: int = 10_000
+) -> np.ndarray:
+    """Number of triangles each ray crosses from its origin to infinity (shinya2013 eq. (29) counts n±).
+
+    Parameters
+    ----------
+    scene : RayScene
+    origins : (N, 3) float
+    direction : (3,) float
+        One direction for all rays.
+    skip_ids, id_of_triangle : (N,) int and (T,) int, optional
+        Hits whose ``id_of_triangle`` equals the ray's ``skip_ids`` are not counted
+        (e.g. the leaf the ray starts on, which may hold several coplanar triangles).
+    max_hits : int
+        Safety bound on crossings per ray.
+
+    Returns
+    -------
+    (N,) int64 crossing counts.
+    """
+    o = np.array(origins, dtype=np.float64).reshape(-1, 3)
+    d = np.broadcast_to(np.asarray(direction, dtype=np.float64) / np.linalg.norm(direction), o.shape).copy()
+    counts = np.zeros(o.shape[0], dtype=np.int64)
+    live = np.arange(o.shape[0])
+    eps = scene.offset_distance()
+    o = o + eps * d
+    for _ in range(max_hits):
+        if live.size == 0:
+            break
+        tri, t = scene.intersect(o[live], d[live])
+        hit = tri >= 0
+        if id_of_triangle is not None and skip_ids is not None:
+            own = np.zeros_like(hit)
+            own[hit] = np.asarray(id_of_triangle)[tri[hit]] == np.asarray(skip_ids)[live[hit]]
+            counts[live[hit & ~own]] += 1
+        else:
+            counts[live[hit]] += 1
+        o[live[hit]] += (t[hit, None] + eps) * d[live[hit]]
+        live = live[hit]
+    return counts

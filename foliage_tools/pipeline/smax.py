@@ -13,12 +13,13 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools import __version__
-from foliage_tools.geometry.sun import choose_sun, to_prototype_space
+from foliage_tools.geometry.sun import Sun, choose_sun, to_prototype_space
 from foliage_tools.lighting import boulanger, envelope
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.density import require_leaves
 from foliage_tools.pipeline.leafdata import leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.scene.model import Scene
 from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.schemas import ENVELOPE_API
 from foliage_tools.scene.write import AttributeEdit, LayerEdits, check_output_path, stage_metadata, write_layer
@@ -45,21 +46,27 @@ class SmaxParams:
             raise UsageError(f"--path must be one of {', '.join(PATHS)}, got {self.path!r}.")
 
 
-def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | None = None) -> Report:
-    progress = progress or Silent()
-    report = Report(command="smax", inputs=[str(path)])
-    check_output_path(path, out)
-    progress.step(f"reading {path}")
-    scene, warnings = read_scene(path)
-    report.warnings.extend(warnings)
-    require_leaves(scene, path)
-    sun = choose_sun(scene.lights, scene.up_axis, params.sun, report.warnings)
+@dataclass(frozen=True)
+class SmaxBake:
+    """One prototype's envelope and lighting."""
+
+    index: int
+    envelope: envelope.EnvelopeResult
+    lighting: boulanger.LightingResult
+
+
+def sky_radiance(scene: Scene) -> tuple[float, float, float]:
+    """The dome light's intensity × colour as sky radiance per unit sun irradiance (0 without a dome)."""
     domes = [light for light in scene.lights if light.kind == "dome"]
-    sky = tuple(float(domes[0].intensity * c) for c in domes[0].color) if domes else (0.0, 0.0, 0.0)
-    edits = LayerEdits()
-    protos = []
+    return tuple(float(domes[0].intensity * c) for c in domes[0].color) if domes else (0.0, 0.0, 0.0)
+
+
+def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], progress: Progress) -> list[SmaxBake]:
+    """Envelope and lighting of every prototype with leaves (pure numerics on the scene's arrays)."""
+    sky = sky_radiance(scene)
     baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
     progress.step(f"s_max for {len(baked)} prototype(s)", total=len(baked))
+    out = []
     for i, proto in baked:
         insts = scene.instances_of(i)
         # the sun in the prototype's own frame (DESIGN.md section 4); per-leaf primvars are per prototype,
@@ -68,9 +75,9 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
         up_local = to_prototype_space(scene.up, insts[0].transform) if insts else scene.up
         rotations = {tuple(np.round(to_prototype_space(sun.direction, inst.transform), 6)) for inst in insts}
         if len(rotations) > 1:
-            report.warnings.append(
+            warnings.append(
                 f"prototype <{proto.path}> has {len(insts)} instances at {len(rotations)} orientations; its per-leaf "
-                f"lighting primvars use the sun as seen by <{insts[0].path}>."
+                f"lighting uses the sun as seen by <{insts[0].path}>."
             )
         env = envelope.solve(
             proto.leaves.centers, proto.leaves.normals, proto.leaves.areas, up=up_local, params=envelope.EnvelopeParams(path=params.path)
@@ -88,6 +95,23 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
             ),
         )
         progress.advance()
+        out.append(SmaxBake(i, env, light))
+    return out
+
+
+def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | None = None) -> Report:
+    progress = progress or Silent()
+    report = Report(command="smax", inputs=[str(path)])
+    check_output_path(path, out)
+    progress.step(f"reading {path}")
+    scene, warnings = read_scene(path)
+    report.warnings.extend(warnings)
+    require_leaves(scene, path)
+    sun = choose_sun(scene.lights, scene.up_axis, params.sun, report.warnings)
+    edits = LayerEdits()
+    protos = []
+    for bake in bake_smax(scene, sun, params, report.warnings, progress):
+        proto, env, light = scene.prototypes[bake.index], bake.envelope, bake.lighting
         if not proto.editable:
             report.warnings.append(native_instance_warning(proto, "s_max primvars"))
         edits.primvars += leaf_primvar_edits(proto, "foliage:smax", env.smax, type="float", element_size=8)

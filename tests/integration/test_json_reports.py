@@ -11,13 +11,17 @@ from tests.integration.test_cli_errors import foliage
 SCHEMA = json.loads((Path(__file__).resolve().parents[2] / "schemas" / "json" / "report.schema.json").read_text())
 
 
-@pytest.mark.parametrize("command", ["inspect", "validate", "density", "smax"])
+@pytest.mark.parametrize("command", ["inspect", "validate", "density", "smax", "reference", "bench"])
 def test_json_report_matches_schema(command, simple_tree, tmp_path):
     args = [command, simple_tree, "--json"]
     if command == "density":
         args += ["-o", tmp_path / "d.usda", "--resolution", "8"]
     if command == "smax":
         args += ["-o", tmp_path / "s.usda"]
+    if command == "reference":
+        args += ["-o", tmp_path / "r.usda", "--paths", "20000"]
+    if command == "bench":
+        args += ["--paths", "20000", "--plot", tmp_path / "b.png"]
     r = foliage(*args)
     assert r.returncode == 0, r.stderr
     report = json.loads(r.stdout)  # stdout holds the JSON object and nothing else

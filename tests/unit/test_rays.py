@@ -243,3 +243,22 @@ def test_degenerate_triangles_are_never_hit(rng):
     assert np.all(ids == MISS)
     ids, _ = scene.intersect(np.array([[0.2, 0.2, 0.0]]), np.array([[0.0, 0.0, 1.0]]))
     assert ids[0] == 2
+
+
+def test_count_crossings_through_a_stack_of_planes():
+    from foliage_tools.geometry.rays import RayScene, count_crossings
+
+    # five horizontal squares (two triangles each) at z = 1..5
+    tris = []
+    for z in range(1, 6):
+        a, b, c, d = (-1, -1, z), (1, -1, z), (1, 1, z), (-1, 1, z)
+        tris += [(a, b, c), (a, c, d)]
+    scene = RayScene(np.array(tris, dtype=float))
+    origins = np.array([[0.1, 0.2, 0.0], [0.3, -0.2, 2.5], [5.0, 5.0, 0.0]])
+    up = count_crossings(scene, origins, (0, 0, 1))
+    down = count_crossings(scene, origins, (0, 0, -1))
+    assert up.tolist() == [5, 3, 0] and down.tolist() == [0, 2, 0]
+    # a ray starting on plane 3 skips its own leaf's (coplanar) triangles
+    leaf = np.repeat(np.arange(5), 2)
+    on = count_crossings(scene, [[0.1, 0.1, 3.0]], (0, 0, 1), skip_ids=[2], id_of_triangle=leaf)
+    assert on.tolist() == [2]

@@ -1,0 +1,89 @@
+"""The methods ``foliage bench`` compares, discovered through a registry.
+
+A method module in ``foliage_tools/bench/methods/`` calls :func:`register`
+at import; :func:`methods` imports every module there, so a method that lands
+later appears in ``bench`` without editing it. Methods the design lists but
+that have not landed are reported as unavailable (``PLANNED``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from foliage_tools.geometry.sun import Sun
+from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.scene.model import Scene
+
+
+@dataclass(frozen=True)
+class BenchContext:
+    """What every method gets: the scene, the sun (world space), the optics."""
+
+    scene: Scene
+    sun: Sun
+    optics: LeafOptics
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class MethodOutput:
+    """Per prototype (index = Scene.prototypes), per-leaf (L, 3) RGB irradiance (DESIGN.md section 3)."""
+
+    e_direct: dict[int, np.ndarray]
+    e_scattered: dict[int, np.ndarray]
+    stats: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class BenchMethod:
+    name: str
+    description: str
+    run: Callable[[BenchContext], MethodOutput] | None
+    """None for a planned method that has not landed."""
+
+    @property
+    def available(self) -> bool:
+        return self.run is not None
+
+
+#: Methods of DESIGN.md that ``bench`` reports even before they land.
+PLANNED = {
+    "ss": "single scattering (shinya2013 baseline): `foliage spp` has not landed",
+    "spp": "simplified plane-parallel (shinya2013): `foliage spp` has not landed",
+    "sppg": "SPP with G-factor (shinya2013): `foliage spp` has not landed",
+    "lb": "lattice-Boltzmann (geist2008/steele2010): `foliage lb` has not landed",
+}
+
+_REGISTRY: dict[str, BenchMethod] = {}
+
+
+def register(name: str, description: str) -> Callable:
+    """Decorator: ``@register("smax", "...")`` on a ``run(ctx) -> MethodOutput`` function."""
+
+    def deco(fn: Callable[[BenchContext], MethodOutput]) -> Callable[[BenchContext], MethodOutput]:
+        if name in _REGISTRY:
+            raise ValueError(f"bench method {name!r} registered twice")
+        _REGISTRY[name] = BenchMethod(name, description, fn)
+        return fn
+
+    return deco
+
+
+def methods() -> list[BenchMethod]:
+    """Every registered method, then the planned ones not yet registered (unavailable)."""
+    from foliage_tools.bench import methods as pkg
+
+    for info in pkgutil.iter_modules(pkg.__path__):
+        importlib.import_module(f"{pkg.__name__}.{info.name}")
+    found = sorted(_REGISTRY.values(), key=lambda m: m.name)
+    planned = [
+        BenchMethod(name, why, None)
+        for name, why in PLANNED.items()
+        if not any(m.name == name or m.name.startswith(name + "-") for m in found)
+    ]
+    return found + planned

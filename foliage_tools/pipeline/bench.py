@@ -1,0 +1,122 @@
+"""``foliage bench``: every available method against the Monte Carlo reference, speed against error."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools.bench.metrics import binned_rms, rel_rms
+from foliage_tools.bench.registry import BenchContext, methods
+from foliage_tools.errors import UsageError
+from foliage_tools.geometry.rays import RayScene, count_crossings
+from foliage_tools.geometry.sun import choose_sun
+from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.density import require_leaves
+from foliage_tools.pipeline.reference import ReferenceParams, bake_reference
+from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.pipeline.world import World
+from foliage_tools.scene.read import read_scene
+
+
+@dataclass(frozen=True)
+class BenchParams:
+    optics: LeafOptics
+    sun: tuple[float, float] | None = None
+    methods: tuple[str, ...] | None = None
+    """Names to run (None: all available)."""
+    paths: int = 4_000_000
+    """Reference sun paths."""
+    seed: int = 0
+
+
+def _per_global_leaf(world: World, per_proto: dict[int, np.ndarray], n_leaves: int) -> np.ndarray:
+    out = np.zeros((n_leaves, 3))
+    for n, p in enumerate(world.instance_prototype):
+        if int(p) in per_proto:
+            out[world.instance_slice(n)] = per_proto[int(p)]
+    return out
+
+
+def depth_thickness(world: World, sun_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per leaf, crossings toward the sun (n+) and total (n+ + n−) through the geometry (shinya2013 eq. (29))."""
+    scene = RayScene(world.triangles)
+    ids = world.leaf_of_triangle
+    ok = ids >= 0
+    area = world.leaf_area
+    # leaf centres: area-weighted triangle centroids
+    tri_area = 0.5 * np.linalg.norm(np.cross(world.triangles[:, 1] - world.triangles[:, 0], world.triangles[:, 2] - world.triangles[:, 0]), axis=1)
+    cen = world.triangles.mean(axis=1)
+    centers = np.stack([np.bincount(ids[ok], weights=tri_area[ok] * cen[ok, i], minlength=len(area)) for i in range(3)], axis=1)
+    centers /= np.maximum(area, 1e-300)[:, None]
+    own = np.arange(len(area))
+    n_plus = count_crossings(scene, centers, sun_dir, skip_ids=own, id_of_triangle=ids)
+    n_minus = count_crossings(scene, centers, -np.asarray(sun_dir), skip_ids=own, id_of_triangle=ids)
+    return n_plus.astype(float), (n_plus + n_minus).astype(float)
+
+
+def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = None) -> Report:
+    progress = progress or Silent()
+    report = Report(command="bench", inputs=[str(path)])
+    scene, warnings = read_scene(path)
+    report.warnings.extend(warnings)
+    require_leaves(scene, path)
+    sun = choose_sun(scene.lights, scene.up_axis, params.sun, report.warnings)
+    all_methods = methods()
+    names = [m.name for m in all_methods]
+    if params.methods:
+        unknown = [n for n in params.methods if n not in names]
+        if unknown:
+            raise UsageError(f"--methods: unknown method(s) {', '.join(unknown)}; known: {', '.join(names)}.")
+    selected = [m for m in all_methods if not params.methods or m.name in params.methods]
+
+    t0 = time.perf_counter()
+    ref = bake_reference(scene, sun, ReferenceParams(optics=params.optics, paths=params.paths, seed=params.seed), progress)
+    ref_seconds = time.perf_counter() - t0
+    world, res = ref.world, ref.result
+    n = int(world.offsets[-1])
+    progress.step("depth and thickness of every leaf toward the sun")
+    depth, thickness = depth_thickness(world, sun.direction)
+    ref_total = res.e_direct + res.e_scattered
+
+    rows = []
+    progress.step(f"running {sum(m.available for m in selected)} method(s)", total=len(selected))
+    for m in selected:
+        if not m.available:
+            rows.append({"name": m.name, "available": False, "description": m.description, "seconds": None,
+                         "rel_rms_scattered": None, "rel_rms_total": None, "binned_rms": None})
+            progress.advance()
+            continue
+        ctx = BenchContext(scene=scene, sun=sun, optics=params.optics, warnings=report.warnings)
+        t = time.perf_counter()
+        out = m.run(ctx)
+        seconds = time.perf_counter() - t
+        scat = _per_global_leaf(world, out.e_scattered, n)
+        direct = _per_global_leaf(world, out.e_direct, n)
+        errors = {
+            "rel_rms_scattered": rel_rms(scat, res.e_scattered),
+            "rel_rms_direct": rel_rms(direct, res.e_direct),
+            "rel_rms_total": rel_rms(direct + scat, ref_total),
+            "binned_rms": binned_rms(scat, res.e_scattered, depth, thickness),
+        }
+        for key, value in errors.items():
+            if not np.isfinite(value):  # the reference is all zero there: a relative error is undefined
+                report.warnings.append(f"{m.name}: {key} is undefined (the reference is zero everywhere); reported as null.")
+                errors[key] = None
+        rows.append({"name": m.name, "available": True, "description": m.description, "seconds": seconds, **errors, "stats": out.stats})
+        progress.advance()
+    report.stats = {
+        "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
+        "optics": params.optics.as_dict(),
+        "leaves": n,
+        "reference": {
+            "paths": int(res.paths), "sky_paths": int(res.sky_paths), "seed": params.seed, "seconds": ref_seconds,
+            "noise_rel": float(res.noise_rel), "noise_rel_total": float(res.noise_rel_total),
+        },
+        "methods": rows,
+        "binned_rms_definition": "sqrt(sum_b (<x>_b - <ref>_b)^2 / sum_b <ref>_b^2) over 8x8 quantile classes of "
+                                 "(crossings toward the sun, total crossings) — shinya2013 eq. (30) read with the square outside",
+    }
+    return report.finish()

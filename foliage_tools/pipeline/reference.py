@@ -1,0 +1,136 @@
+"""``foliage reference``: Monte Carlo ground truth per leaf through the actual geometry (DESIGN.md section 3).
+
+Per-leaf primvars are per prototype: for a prototype with several instances
+they hold the mean over its instances (``foliage bench`` compares every
+instance's own values).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools.errors import UsageError
+from foliage_tools.geometry.sun import Sun, choose_sun
+from foliage_tools.lighting import reference
+from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.density import require_leaves
+from foliage_tools.pipeline.leafdata import leaf_primvar_edits, native_instance_warning
+from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.pipeline.smax import sky_radiance
+from foliage_tools.pipeline.world import World, assemble, prototype_means
+from foliage_tools.scene.model import Scene
+from foliage_tools.scene.read import read_scene
+from foliage_tools.scene.write import LayerEdits, check_output_path, stage_metadata, write_layer
+
+
+@dataclass(frozen=True)
+class ReferenceParams:
+    """What ``foliage reference`` traces."""
+
+    optics: LeafOptics
+    """Leaf and wood optics (``--leaf-optics``, ``--wood-reflectance``)."""
+    sun: tuple[float, float] | None = None
+    """``--sun`` azimuth, elevation in degrees; None: the stage's sun or the default."""
+    paths: int = 1_000_000
+    """Sun photon paths (``--paths``); the sky gets as many when the stage has a dome light."""
+    seed: int = 0
+    """Seed: results are bitwise reproducible for a seed, whatever the number of workers."""
+    workers: int | None = None
+    """Threads; None: all cores."""
+
+    def __post_init__(self) -> None:
+        if self.paths < 2:
+            raise UsageError(f"--paths must be at least 2 (the noise estimate needs two halves), got {self.paths}.")
+        if self.seed < 0:
+            raise UsageError(f"--seed must be >= 0, got {self.seed}.")
+
+
+@dataclass(frozen=True)
+class ReferenceBake:
+    world: World
+    result: reference.ReferenceResult
+
+
+class _ProgressAdapter:
+    """reference.solve's ``progress(done, total)`` -> a progress bar that learns its total on the first call."""
+
+    def __init__(self, progress: Progress, message: str) -> None:
+        self.progress = progress
+        self.message = message
+        self.done = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.done is None:
+            self.progress.step(self.message, total=total)
+            self.done = 0
+        self.progress.advance(done - self.done)
+        self.done = done
+
+
+def bake_reference(scene: Scene, sun: Sun, params: ReferenceParams, progress: Progress) -> ReferenceBake:
+    world = assemble(scene)
+    inputs = reference.ReferenceInputs(
+        triangles=world.triangles,
+        leaf_of_triangle=world.leaf_of_triangle,
+        leaf_area=world.leaf_area,
+        optics=params.optics,
+        sun_direction=sun.direction,
+        sky_radiance=np.asarray(sky_radiance(scene)),
+        up=scene.up,
+    )
+    rp = reference.ReferenceParams(paths=params.paths, seed=params.seed, workers=params.workers)
+    message = f"tracing {params.paths:,} sun paths (+ sky) through {len(world.triangles):,} triangles"
+    result = reference.solve(inputs, rp, progress=_ProgressAdapter(progress, message))
+    return ReferenceBake(world, result)
+
+
+def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: Progress | None = None) -> Report:
+    progress = progress or Silent()
+    report = Report(command="reference", inputs=[str(path)])
+    check_output_path(path, out)
+    progress.step(f"reading {path}")
+    scene, warnings = read_scene(path)
+    report.warnings.extend(warnings)
+    require_leaves(scene, path)
+    sun = choose_sun(scene.lights, scene.up_axis, params.sun, report.warnings)
+    bake = bake_reference(scene, sun, params, progress)
+    res = bake.result
+    counts = [p.leaves.count for p in scene.prototypes]
+    direct = prototype_means(bake.world, res.e_direct, len(counts), counts)
+    scattered = prototype_means(bake.world, res.e_scattered, len(counts), counts)
+    edits = LayerEdits()
+    for i, proto in enumerate(scene.prototypes):
+        if not proto.leaves.count:
+            continue
+        if not proto.editable:
+            report.warnings.append(native_instance_warning(proto, "reference primvars"))
+        edits.primvars += leaf_primvar_edits(proto, "foliage:ref:direct", direct[i], type="color3f")
+        edits.primvars += leaf_primvar_edits(proto, "foliage:ref:scattered", scattered[i], type="color3f")
+    if res.truncated:
+        report.warnings.append(f"{res.truncated} path(s) were abandoned after {reference.ReferenceParams().max_events} events.")
+    progress.step(f"writing {out}")
+    report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
+    report.stats = {
+        "paths": int(res.paths),
+        "sky_paths": int(res.sky_paths),
+        "seed": params.seed,
+        "workers": int(res.workers),
+        "noise_rel": float(res.noise_rel),
+        "noise_rel_total": float(res.noise_rel_total),
+        "leaves": int(bake.world.offsets[-1]),
+        "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
+        "optics": params.optics.as_dict(),
+        "energy": {
+            "incident": res.incident.tolist(),
+            "absorbed_leaves": res.absorbed.sum(axis=0).tolist(),
+            "absorbed_wood": np.asarray(res.absorbed_wood).tolist(),
+            "escaped": res.escaped.tolist(),
+        },
+        "e_direct_mean": res.e_direct.mean(axis=0).tolist(),
+        "e_scattered_mean": res.e_scattered.mean(axis=0).tolist(),
+        "seconds_tracing": float(res.seconds),
+    }
+    return report.finish()

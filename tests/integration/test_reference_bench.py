@@ -1,0 +1,71 @@
+"""``foliage reference`` and ``foliage bench`` end to end."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from foliage_tools.bench.registry import PLANNED, methods
+from foliage_tools.lighting.optics import parse_leaf_optics
+from foliage_tools.pipeline.reference import ReferenceParams, run_reference
+from tests.integration.test_cli_errors import foliage
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
+
+
+def _ref_primvars(layer: Path) -> tuple[np.ndarray, np.ndarray]:
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(layer))  # keep the stage alive while its prims are used
+    pv = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Tree/Leaves"))
+    return np.asarray(pv.GetPrimvar("foliage:ref:direct").Get()), np.asarray(pv.GetPrimvar("foliage:ref:scattered").Get())
+
+
+def test_reference_is_deterministic_for_a_seed_and_writes_its_primvars(tmp_path):
+    optics = parse_leaf_optics(None)
+    a = run_reference(EXAMPLE, tmp_path / "a.usda", ReferenceParams(optics=optics, paths=60000, seed=3, workers=2))
+    b = run_reference(EXAMPLE, tmp_path / "b.usda", ReferenceParams(optics=optics, paths=60000, seed=3, workers=1))
+    c = run_reference(EXAMPLE, tmp_path / "c.usda", ReferenceParams(optics=optics, paths=60000, seed=4))
+    da, sa = _ref_primvars(tmp_path / "a.usda")
+    db, sb = _ref_primvars(tmp_path / "b.usda")
+    dc, _ = _ref_primvars(tmp_path / "c.usda")
+    assert np.array_equal(da, db) and np.array_equal(sa, sb)
+    assert not np.array_equal(da, dc)
+    assert da.shape == (1500, 3) and np.all(da >= 0) and np.all(sa >= 0)
+    # energy balance (summed over channels it holds per path): absorbed + escaped = incident
+    e = a.stats["energy"]
+    np.testing.assert_allclose(
+        np.sum(e["absorbed_leaves"]) + np.sum(e["absorbed_wood"]) + np.sum(e["escaped"]), np.sum(e["incident"]), rtol=1e-9
+    )
+    assert 0 < a.stats["noise_rel"] < 1
+    assert foliage("validate", tmp_path / "a.usda").returncode == 0
+
+
+def test_registry_lists_landed_and_planned_methods():
+    found = {m.name: m for m in methods()}
+    assert found["smax"].available
+    for name in PLANNED:
+        assert name in found or any(n.startswith(name + "-") for n in found)
+
+
+def test_bench_reports_every_method_with_errors_beside_the_reference_noise(tmp_path):
+    r = foliage("bench", EXAMPLE, "--paths", "200000", "--json", "--plot", tmp_path / "p.png")
+    assert r.returncode == 0, r.stderr
+    stats = json.loads(r.stdout)["stats"]
+    rows = {m["name"]: m for m in stats["methods"]}
+    smax = rows["smax"]
+    assert smax["available"] and smax["seconds"] > 0
+    # E_direct is most of the total and smax models it: its total error must be well below 100 %
+    assert 0 < smax["rel_rms_total"] < 1 and 0 < smax["rel_rms_scattered"] < 2
+    assert stats["reference"]["noise_rel"] > 0
+    assert (tmp_path / "p.png").stat().st_size > 1000
+    bad = foliage("bench", EXAMPLE, "--methods", "smax,nope", "--paths", "1000")
+    assert bad.returncode == 2 and "nope" in bad.stderr
+
+
+def test_reference_rejects_too_few_paths(tmp_path):
+    with pytest.raises(Exception, match="paths"):
+        ReferenceParams(optics=parse_leaf_optics(None), paths=1)
