@@ -56,7 +56,6 @@ PLANNED = {
     "ss": "single scattering (shinya2013 baseline): `foliage spp` has not landed",
     "spp": "simplified plane-parallel (shinya2013): `foliage spp` has not landed",
     "sppg": "SPP with G-factor (shinya2013): `foliage spp` has not landed",
-    "lb": "lattice-Boltzmann (geist2008/steele2010): `foliage lb` has not landed",
 }
 
 _REGISTRY: dict[str, BenchMethod] = {}

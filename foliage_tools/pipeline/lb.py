@@ -1,0 +1,221 @@
+"""``foliage lb``: lattice-Boltzmann light bake per prototype (geist2008 sec. 2.2, 3, 4.2; steele2010 sec. 3.1).
+
+Per prototype: leaf-area density on a cropped grid (``foliage density``'s
+area method) -> lattice node density rho = 1 − exp(−G·LAD·Δx) (lighting.collision)
+-> steady-state photon energy density u for the requested boundary
+conditions, plus the unscattered solve (σs -> 0) that separates direct from
+scattered light.
+
+Per-leaf conversion (documented in lighting.lb): a randomly oriented two-sided
+leaf at a node receives E = u/2; the scattered part is (u − u_unscattered)/2,
+sampled trilinearly at the leaf centre. E_direct = |n·s| × u_unscattered(centre):
+the leaf's own orientation times the fraction of the sun beam reaching the
+node unscattered (u_unscattered = 1 in an empty grid).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools import __version__
+from foliage_tools.errors import UsageError
+from foliage_tools.geometry.sun import Sun, choose_sun, to_prototype_space
+from foliage_tools.geometry.voxelize import GridSpec
+from foliage_tools.lighting import lb
+from foliage_tools.lighting.collision import brown, density_from_lad, leaf_medium
+from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.params import DensityParams
+from foliage_tools.pipeline.density import compute_density, require_leaves, vdb_path, volume_path
+from foliage_tools.pipeline.leafdata import leaf_primvar_edits, native_instance_warning
+from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.scene.model import Prototype, Scene
+from foliage_tools.scene.read import read_scene
+from foliage_tools.scene.vdb import Grid
+from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, check_output_path, stage_metadata, write_layer
+
+BASES = ("sun", "all")
+#: Nodes whose wood fraction exceeds this are "brown" (g = −1, geist2008 sec. 3).
+BROWN_WOOD_FRACTION = 0.5
+
+
+@dataclass(frozen=True)
+class LBBakeParams:
+    """What ``foliage lb`` bakes."""
+
+    optics: LeafOptics
+    sun: tuple[float, float] | None = None
+    resolution: int = 64
+    """Lattice nodes along the longest edge of the foliage bounds."""
+    bases: str = "sun"
+    """``sun``: the geist2008 sun boundary for the scene's sun; ``all``: the 18 Kronecker bases + ambient (steele2010 3.1)."""
+    tolerance: float = 1e-5
+    """Relative residual at which the steady state is accepted."""
+    solver: str = "auto"
+    """``auto``, ``iterate``, ``bicgstab`` or ``extrapolate`` (lighting.lb)."""
+    absorption_scale: float = 1.0
+    """σa = scale × (1 − r − t): 1 is the physical leaf; geist2008 used 0.125 (sec. 3)."""
+
+    def __post_init__(self) -> None:
+        if self.bases not in BASES:
+            raise UsageError(f"--bases must be one of {', '.join(BASES)}, got {self.bases!r}.")
+        if not (0 < self.tolerance < 1):
+            raise UsageError(f"--tolerance must be in (0, 1), got {self.tolerance}.")
+        if not (4 <= self.resolution <= 512):
+            raise UsageError(f"--resolution must be between 4 and 512 nodes, got {self.resolution}.")
+        if self.solver not in lb.SOLVERS:
+            raise UsageError(f"--solver must be one of {', '.join(lb.SOLVERS)}, got {self.solver!r}.")
+        if not (0 < self.absorption_scale <= 1):
+            raise UsageError(f"--absorption-scale must be in (0, 1], got {self.absorption_scale}.")
+
+
+def sample_trilinear(field: np.ndarray, grid: GridSpec, points: np.ndarray) -> np.ndarray:
+    """Trilinear interpolation of a node field (values at voxel centres) at points; (P, ...) result.
+
+    Points outside the node lattice take the nearest boundary node's value.
+    """
+    f = np.asarray(field)
+    x = (np.asarray(points, dtype=np.float64) - np.asarray(grid.origin)) / grid.voxel_size - 0.5
+    shape = np.asarray(f.shape[:3])
+    x = np.clip(x, 0.0, shape - 1)
+    i0 = np.minimum(np.floor(x).astype(np.int64), shape - 2).clip(0)
+    w = x - i0
+    out = 0.0
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                ix = np.minimum(i0[:, 0] + dx, shape[0] - 1)
+                iy = np.minimum(i0[:, 1] + dy, shape[1] - 1)
+                iz = np.minimum(i0[:, 2] + dz, shape[2] - 1)
+                wt = (w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1]) * (w[:, 2] if dz else 1 - w[:, 2])
+                out = out + f[ix, iy, iz] * wt.reshape((-1,) + (1,) * (f.ndim - 3))
+    return np.asarray(out)
+
+
+@dataclass(frozen=True)
+class LBPrototypeBake:
+    index: int
+    grid: GridSpec
+    total: np.ndarray
+    """(nx, ny, nz, K, C) energy density of every boundary condition."""
+    unscattered: np.ndarray
+    """(nx, ny, nz, K, C) the same without scattering."""
+    sun_total: np.ndarray
+    """(nx, ny, nz, C) for the scene's sun (relit from the bases for ``all``)."""
+    sun_unscattered: np.ndarray
+    e_direct: np.ndarray
+    """(L, 3) per-leaf E_direct."""
+    e_scattered: np.ndarray
+    """(L, 3) per-leaf E_scattered."""
+    result: lb.LBResult
+    seconds: float
+
+
+def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: LBBakeParams) -> LBPrototypeBake:
+    dens = compute_density(proto, DensityParams(resolution=params.resolution, method="area"))
+    grid = dens.grid
+    rho = density_from_lad(dens.density, grid.voxel_size)
+    medium = leaf_medium(params.optics, absorption_scale=params.absorption_scale)
+    mask = dens.wood_fraction > BROWN_WOOD_FRACTION
+    boundaries = (lb.sun_boundary(sun_local),) if params.bases == "sun" else lb.relighting_boundaries()
+    problem = lb.LBProblem(density=rho, medium=medium, boundaries=boundaries,
+                           brown_mask=mask if mask.any() else None, brown_medium=brown(medium) if mask.any() else None)
+    lbp = lb.LBParams(tolerance=params.tolerance, solver=params.solver)
+    res = lb.solve(problem, lbp)
+    res_un = lb.solve(problem.unscattered(), lbp)
+    if params.bases == "sun":
+        sun_total, sun_un = res.energy_density[..., 0, :], res_un.energy_density[..., 0, :]
+    else:
+        sun_total = lb.relight(res.energy_density, sun_local)
+        sun_un = lb.relight(res_un.energy_density, sun_local)
+    scattered_field = lb.scattered_leaf_irradiance(sun_total, sun_un)
+    e_scattered = np.maximum(sample_trilinear(scattered_field, grid, proto.leaves.centers), 0.0)
+    cos = np.abs(proto.leaves.normals @ sun_local)
+    e_direct = cos[:, None] * sample_trilinear(sun_un, grid, proto.leaves.centers)
+    return LBPrototypeBake(index, grid, res.energy_density, res_un.energy_density, sun_total, sun_un,
+                           e_direct, e_scattered, res, dens.seconds + res.seconds + res_un.seconds)
+
+
+def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], progress: Progress) -> list[LBPrototypeBake]:
+    baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
+    progress.step(f"lattice-Boltzmann ({params.bases}) for {len(baked)} prototype(s)", total=len(baked))
+    out = []
+    for i, proto in baked:
+        insts = scene.instances_of(i)
+        sun_local = to_prototype_space(sun.direction, insts[0].transform) if insts else sun.direction
+        if len({tuple(np.round(to_prototype_space(sun.direction, t.transform), 6)) for t in insts}) > 1:
+            warnings.append(f"prototype <{proto.path}> has instances at several orientations; lbIndirect uses the sun as seen by <{insts[0].path}>.")
+        out.append(bake_prototype(proto, i, sun_local, params))
+        progress.advance()
+    return out
+
+
+def _vertex_indirect(proto: Prototype, bake: LBPrototypeBake) -> list[PrimvarEdit]:
+    """primvars:foliage:lbIndirect: scattered irradiance for the scene's sun at every leaf-mesh vertex."""
+    field = lb.scattered_leaf_irradiance(bake.sun_total, bake.sun_unscattered)
+    edits = []
+    for mesh in proto.meshes:
+        if mesh.is_leaf and proto.editable:
+            values = np.maximum(sample_trilinear(field, bake.grid, mesh.points), 0.0)
+            edits.append(PrimvarEdit(prim=mesh.path, name="foliage:lbIndirect", values=values, type="color3f", interpolation="vertex"))
+    return edits
+
+
+def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | None = None) -> Report:
+    progress = progress or Silent()
+    report = Report(command="lb", inputs=[str(path)])
+    check_output_path(path, out)
+    progress.step(f"reading {path}")
+    scene, warnings = read_scene(path)
+    report.warnings.extend(warnings)
+    require_leaves(scene, path)
+    sun = choose_sun(scene.lights, scene.up_axis, params.sun, report.warnings)
+    edits = LayerEdits()
+    protos = []
+    for bake in bake_lb(scene, sun, params, report.warnings, progress):
+        proto = scene.prototypes[bake.index]
+        g = bake.grid
+        meta = {"units": "photon energy density (sun irradiance 1 = 1)", "metersPerUnit": float(scene.meters_per_unit)}
+        if params.bases == "sun":
+            grids = [Grid("lbSun", bake.sun_total.astype(np.float32), tuple(g.origin), g.voxel_size, meta)]
+        else:
+            grids = [Grid("lbAmbient", bake.total[..., 0, :].astype(np.float32), tuple(g.origin), g.voxel_size, meta)]
+            grids += [Grid(f"lbBase{k:02d}", bake.total[..., k, :].astype(np.float32), tuple(g.origin), g.voxel_size, meta) for k in range(1, 19)]
+        r = bake.result
+        attrs = {
+            "foliage:method": "lb",
+            "foliage:voxelSize": float(g.voxel_size),
+            "foliage:resolution": tuple(int(n) for n in g.shape),
+            "foliage:metersPerUnit": float(scene.meters_per_unit),
+            "foliage:iterations": int(r.iterations),
+            "foliage:residual": float(r.residual),
+            "foliage:seconds": float(bake.seconds),
+            "foliage:version": __version__,
+        }
+        vol = volume_path(proto)
+        edits.volumes.append(VolumeEdit(path=vol, vdb_file=vdb_path(out, scene, bake.index), grids=tuple(grids), attributes=attrs))
+        if not proto.editable:
+            report.warnings.append(native_instance_warning(proto, "LB primvars"))
+        edits.primvars += _vertex_indirect(proto, bake)
+        edits.primvars += leaf_primvar_edits(proto, "foliage:lb:direct", bake.e_direct, type="color3f")
+        edits.primvars += leaf_primvar_edits(proto, "foliage:lb:scattered", bake.e_scattered, type="color3f")
+        if not r.converged:
+            report.warnings.append(f"prototype <{proto.path}>: LB stopped at residual {r.residual:.2e} above --tolerance {params.tolerance:g}.")
+        protos.append({
+            "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
+            "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
+            "mlups": float(r.mlups), "seconds": bake.seconds,
+            "e_direct_mean": bake.e_direct.mean(axis=0).tolist(), "e_scattered_mean": bake.e_scattered.mean(axis=0).tolist(),
+        })
+    progress.step(f"writing {out}")
+    report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
+    first = protos[0]
+    report.stats = {
+        "solver": first["solver"], "iterations": first["iterations"], "residual": first["residual"],
+        "resolution": first["resolution"], "bases": params.bases, "mlups": first["mlups"],
+        "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
+        "optics": params.optics.as_dict(), "absorption_scale": params.absorption_scale, "prototypes": protos,
+    }
+    return report.finish()
