@@ -18,9 +18,9 @@ demo: setup
 	@mkdir -p $(DEMO)
 	$(FOLIAGE) inspect $(EXAMPLE)
 	$(FOLIAGE) validate $(EXAMPLE)
-	$(FOLIAGE) density $(EXAMPLE) -o $(DEMO)/tree.density.usda --resolution 64
-	$(FOLIAGE) validate $(DEMO)/tree.density.usda
-	@echo "demo outputs are in $(DEMO)/: tree.density.usda (layer over the example) and tree.density.vdb (grids)"
+	$(FOLIAGE) bake $(EXAMPLE) -o $(DEMO) --with-reference
+	$(FOLIAGE) validate $(DEMO)/tree_small.lb.usda
+	@echo "demo outputs are in $(DEMO)/: tree_small.lb.usda (the whole bake over the example), .vdb grids, bench.json and bench.png"
 
 test: setup
 	$(PY) -m pytest -m "not slow" -q

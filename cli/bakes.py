@@ -243,3 +243,54 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
         return 0
 
     run(body)
+
+
+@click.command()
+@SCENE
+@click.option("-o", "--output", "outdir", required=True, type=click.Path(path_type=Path, file_okay=False), help="Output directory (created if missing).")
+@click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True, help="Density and LB grid resolution.")
+@click.option("--with-reference", is_flag=True, help="Also trace the Monte Carlo reference and write bench.json / bench.png.")
+@click.option("--reference-paths", type=click.IntRange(min=2), default=4_000_000, show_default=True, help="Reference sun paths (with --with-reference).")
+@bake_options
+@common_options
+def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, sun: str | None, leaf_optics: str | None,
+         wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
+    """The main job: density, s_max and LB bakes (and a speed-vs-error report) into OUTDIR.
+
+    Each stage writes a layer that sublayers the previous one, so the last
+    (OUTDIR/NAME.lb.usda) holds the whole bake over the untouched input.
+
+    \b
+    Example:
+      foliage bake examples/tree_small.usda -o out/bake --with-reference
+    """
+    from foliage_tools.geometry.sun import parse_sun
+    from foliage_tools.pipeline.bake import BakeParams, run_bake
+
+    def body() -> int:
+        setup_logging(verbose, quiet)
+        params = BakeParams(
+            optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
+            sun=parse_sun(sun) if sun is not None else None,
+            resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
+        )
+        with console.RichProgress(enabled=not (quiet or as_json)) as progress:
+            report = run_bake(scene, outdir, params, progress=progress)
+        if as_json:
+            console.print_json(report.as_json())
+            return 0
+        console.warn(report.warnings, quiet)
+        if not quiet:
+            for name, st in report.stats["stages"].items():
+                console.stdout.print(f"{name:>8}: {st['seconds']:.2f} s -> {', '.join(st['outputs'])}", highlight=False, soft_wrap=True)
+            b = report.stats["bench"]
+            if b:
+                ref = b["reference"]
+                console.stdout.print(f"reference: {ref['paths']:,} paths, noise {ref['noise_rel']:.3f} (E_scattered), {ref['noise_rel_total']:.3f} (total)", highlight=False)
+                for m in b["methods"]:
+                    if m["available"] and m["rel_rms_total"] is not None:
+                        console.stdout.print(f"  {m['name']:>8}: {m['seconds']:.3f} s, rel. RMS E_scattered {m['rel_rms_scattered']:.3f}, total {m['rel_rms_total']:.3f}", highlight=False)
+            console.stdout.print(f"result: {report.stats['result']}", highlight=False)
+        return 0
+
+    run(body)

@@ -180,9 +180,9 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
 
 
 def _add_commands() -> None:
-    from foliage_tools.cli.bakes import bench, lb, reference, smax
+    from foliage_tools.cli.bakes import bake, bench, lb, reference, smax
 
-    for command in (lb, smax, reference, bench):
+    for command in (lb, smax, reference, bench, bake):
         cli.add_command(command)
 
 
