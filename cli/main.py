@@ -181,8 +181,9 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
 
 def _add_commands() -> None:
     from foliage_tools.cli.bakes import bake, bench, lb, reference, smax
+    from foliage_tools.cli.preview import preview
 
-    for command in (lb, smax, reference, bench, bake):
+    for command in (lb, smax, reference, bench, bake, preview):
         cli.add_command(command)
 
 

@@ -2,7 +2,7 @@
 
 OUTDIR/<name>.density.usda -> <name>.smax.usda -> <name>.lb.usda (the last
 holds the whole bake, since each layer sublayers the one before), a preview
-image when the previewer is available, and with ``with_reference`` a bench
+image comparing direct light with the LB and s_max bakes, and with ``with_reference`` a bench
 report (JSON + plot). Each stage's files are written atomically; if a stage
 fails, the earlier stages' complete outputs stay and the error names the stage.
 """
@@ -60,6 +60,13 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
         "lb", run_lb, smax_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution), progress=progress
     )
     final = lb_out
+    from foliage_tools.pipeline.preview import PreviewParams, run_preview
+
+    # a picture of the bake: direct light beside direct + LB indirect, same exposure
+    stages["preview"] = _stage(
+        "preview", run_preview, final, outdir / f"{stem}.png",
+        PreviewParams(compare=("direct", "lb", "smax"), size=(512, 512), sun=params.sun), progress=progress,
+    )
     if params.with_reference:
         from foliage_tools.bench.plot import write_plot
         from foliage_tools.pipeline.bench import BenchParams, run_bench

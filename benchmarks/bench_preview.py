@@ -1,0 +1,154 @@
+"""Benchmark the previewer's frame time on synthetic crowns and an instanced forest.
+
+Usage::
+
+    python benchmarks/bench_preview.py [--size 1024x1024] [--triangles 10000 100000 1000000]
+                                       [--forest 100] [--frames 5] [--samples 4] [--shadow-size 2048]
+
+Scenes:
+
+* ``cards N``: N/2 square leaf cards (2 triangles each, side 0.05 × crown
+  radius, uniformly random orientation) with centres uniform in a ball, one
+  instance, ground plane on.
+* ``forest K``: K instances of ``examples/tree_small.usda`` (leaves and wood)
+  on a jittered grid, random rotation about up and scale 0.8-1.2, drawn with
+  instancing (one vertex buffer per material, one matrix per instance).
+
+For each scene: upload time (GL context, buffers, programs: the first frame
+compiles shaders, so it is reported separately), then the median over
+``--frames`` frames of
+
+* ``frame``: a full frame with a new sun direction each time (shadow pass +
+  main pass + MSAA resolve + read-back of the float image), and
+* ``cached``: the same camera and sun again (the shadow map is reused).
+
+Timings are wall clock on whatever GL the machine gives (Mesa llvmpipe on a
+CPU-only machine: expect noisy numbers on a shared host).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from foliage_tools.pipeline.preview import parse_size  # noqa: E402
+from foliage_tools.preview.camera import direction_from_angles, orbit_camera  # noqa: E402
+from foliage_tools.preview.renderer import DrawMesh, DrawPrototype, DrawScene, Ground, Lighting, Renderer  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def card_corners(n_cards: int, rng: np.random.Generator, radius: float = 1.0) -> np.ndarray:
+    """(6 n, 3) float32 un-indexed corners of n random cards in a ball lifted above the ground."""
+    side = 0.05 * radius
+    d = rng.normal(size=(n_cards, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    c = d * radius * rng.uniform(size=(n_cards, 1)) ** (1 / 3) + [0.0, 0.0, 1.5 * radius]
+    q, r = np.linalg.qr(rng.normal(size=(n_cards, 3, 3)))
+    q = q * np.sign(np.diagonal(r, axis1=1, axis2=2))[:, None, :]
+    u, v = q[:, :, 0] * side / 2, q[:, :, 1] * side / 2
+    a, b, cc, dd = c - u - v, c + u - v, c + u + v, c - u + v
+    return np.stack([a, b, cc, a, cc, dd], axis=1).reshape(-1, 3).astype(np.float32)
+
+
+def cards_scene(triangles: int, rng: np.random.Generator) -> DrawScene:
+    mesh = DrawMesh(corners=card_corners(triangles // 2, rng), leaf=True)
+    return DrawScene((DrawPrototype((mesh,), np.eye(4)[None]),), UP)
+
+
+def forest_scene(count: int, rng: np.random.Generator) -> DrawScene:
+    from foliage_tools.scene.read import read_scene
+
+    tree = REPO / "examples" / "tree_small.usda"
+    if not tree.exists():
+        raise SystemExit(f"{tree} is missing: run examples/make_tree.py first (see examples/README.md)")
+    scene, _ = read_scene(tree)
+    base = DrawScene.from_scene(scene).prototypes[0]
+    side = int(np.ceil(np.sqrt(count)))
+    spacing = 3.0
+    transforms = []
+    for k in range(count):
+        i, j = divmod(k, side)
+        a = rng.uniform(0, 2 * np.pi)
+        s = rng.uniform(0.8, 1.2)
+        m = np.eye(4)
+        m[:3, :3] = s * np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        m[:3, 3] = [(i - side / 2) * spacing + rng.uniform(-0.5, 0.5), (j - side / 2) * spacing + rng.uniform(-0.5, 0.5), 0.0]
+        transforms.append(m @ scene.instances[0].transform)
+    return DrawScene((DrawPrototype(base.meshes, np.array(transforms)),), UP)
+
+
+def bench(name: str, scene: DrawScene, *, width: int, height: int, frames: int, samples: int, shadow_size: int) -> dict:
+    t0 = time.perf_counter()
+    renderer = Renderer(scene, samples=samples, shadow_size=shadow_size)
+    upload = time.perf_counter() - t0
+    bounds = scene.bounds()
+    ground = Ground.under(bounds, UP)
+    cam = orbit_camera(bounds, width=width, height=height, up_axis="Z", azimuth=30, elevation=20, clip_bounds=ground.bounds(UP))
+    with renderer:
+        t0 = time.perf_counter()
+        renderer.render(cam, Lighting(direction_from_angles(0, 50, "Z")), ground=ground)  # compiles shaders
+        first = time.perf_counter() - t0
+        full, cached = [], []
+        for k in range(frames):
+            light = Lighting(direction_from_angles(45 + 7 * (k + 1), 50, "Z"))
+            t0 = time.perf_counter()
+            renderer.render(cam, light, ground=ground)
+            full.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            renderer.render(cam, light, ground=ground)
+            cached.append(time.perf_counter() - t0)
+        gl = renderer.renderer_name
+        ms = renderer.samples or 1
+    return {
+        "scene": name,
+        "triangles": scene.triangle_count,
+        "instances": scene.instance_count,
+        "upload": upload,
+        "first": first,
+        "frame": statistics.median(full),
+        "cached": statistics.median(cached),
+        "gl": gl,
+        "samples": ms,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--size", default="1024x1024")
+    ap.add_argument("--triangles", type=int, nargs="*", default=[10_000, 100_000, 1_000_000])
+    ap.add_argument("--forest", type=int, nargs="*", default=[100], help="forest sizes (instances); none to skip")
+    ap.add_argument("--frames", type=int, default=5)
+    ap.add_argument("--samples", type=int, default=4)
+    ap.add_argument("--shadow-size", type=int, default=2048)
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args()
+    width, height = parse_size(args.size)
+    rng = np.random.default_rng(args.seed)
+    rows = []
+    for n in args.triangles:
+        rows.append(bench(f"cards {n:,}", cards_scene(n, rng), width=width, height=height, frames=args.frames,
+                          samples=args.samples, shadow_size=args.shadow_size))
+    for k in args.forest:
+        rows.append(bench(f"forest {k} x tree_small", forest_scene(k, rng), width=width, height=height, frames=args.frames,
+                          samples=args.samples, shadow_size=args.shadow_size))
+    print(f"foliage preview frame times at {width}x{height}, {rows[0]['samples']} samples/pixel (supersampled), shadow map {args.shadow_size}², "
+          f"median of {args.frames} frames; GL: {rows[0]['gl']}")
+    head = f"{'scene':<26} {'triangles':>10} {'inst.':>6} {'upload s':>9} {'1st frame s':>12} {'frame s':>8} {'cached s':>9} {'Mtri/s':>7}"
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        print(f"{r['scene']:<26} {r['triangles']:>10,} {r['instances']:>6} {r['upload']:>9.3f} {r['first']:>12.3f} "
+              f"{r['frame']:>8.3f} {r['cached']:>9.3f} {r['triangles'] / r['frame'] / 1e6:>7.2f}")
+
+
+if __name__ == "__main__":
+    main()

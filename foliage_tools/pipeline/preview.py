@@ -1,0 +1,477 @@
+"""``foliage preview``: read a scene, render it with the previewer, write PNG or EXR images.
+
+Methods differ only in the scattered light added to the leaves; every method
+draws the same direct term (shadow-mapped sun, sky, ground bounce):
+
+| method | scattered irradiance E_scattered read from the leaf meshes | written by |
+|---|---|---|
+| ``direct`` | none | -- |
+| ``lb`` | ``primvars:foliage:lb:scattered`` (uniform) or ``primvars:foliage:lbIndirect`` (vertex) | ``foliage lb`` |
+| ``spp`` | ``primvars:foliage:spp:scattered`` (uniform) or ``primvars:foliage:sppIrradiance`` (vertex) | ``foliage spp`` |
+| ``smax`` | ``primvars:foliage:smax:scattered`` (uniform); ``primvars:foliage:smax`` marks the bake | ``foliage smax`` |
+| ``reference`` | ``primvars:foliage:ref:scattered`` (uniform) | ``foliage reference`` |
+
+Output (DESIGN.md section 3): ``.png`` is tone-mapped (Reinhard) and
+sRGB-encoded over the sky colour; ``.exr`` is linear radiance with alpha =
+coverage, premultiplied (no sky). A sequence (``frames``) writes
+``IMG.0001.png`` ... all or none, with one exposure for all frames.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools.errors import InputError, OutputError, UsageError
+from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.geometry.sun import DEFAULT_SUN, angles_from_direction, direction_from_angles, parse_sun  # noqa: F401  (parse_sun re-exported)
+from foliage_tools.preview.camera import Camera, camera_from_usd, orbit_camera, usd_camera_size
+from foliage_tools.preview.compare import false_colour, rel_rms, relative_error, side_by_side
+from foliage_tools.preview.optics import SurfaceOptics
+from foliage_tools.preview.renderer import MAX_SKY_SAMPLES, SAMPLES, DrawScene, Frame, Ground, Lighting, Renderer
+from foliage_tools.preview.tonemap import Exposure, luminance, measure_exposure, reinhard, srgb_encode
+from foliage_tools.scene.model import MeshPart, Scene
+
+METHODS = ("direct", "lb", "spp", "smax", "reference")
+"""DESIGN.md section 3: azimuth, elevation (degrees) when the stage has no sun and no ``--sun``."""
+DEFAULT_SKY_RADIANCE = (0.033, 0.042, 0.055)
+"""Sky radiance when the stage has no dome light: a blue sky whose irradiance on a
+horizontal surface (π L) is about 0.13, 15 % of the default sun's (sin 60° = 0.87)."""
+DEFAULT_SIZE = (1024, 1024)
+DEFAULT_SEQUENCE_FRAMES = 36
+
+
+@dataclass(frozen=True)
+class MethodData:
+    """Where a method's baked scattered light lives, and who writes it."""
+
+    required: str
+    """The primvar whose absence means the bake has not run."""
+    sources: tuple[str, ...]
+    """Primvars holding E_scattered, tried in order."""
+    command: str
+
+
+METHOD_DATA = {
+    "lb": MethodData("foliage:lbIndirect", ("foliage:lb:scattered", "foliage:lbIndirect"), "foliage lb"),
+    "spp": MethodData("foliage:sppIrradiance", ("foliage:spp:scattered", "foliage:sppIrradiance"), "foliage spp"),
+    "smax": MethodData("foliage:smax", ("foliage:smax:scattered",), "foliage smax"),
+    "reference": MethodData("foliage:ref:scattered", ("foliage:ref:scattered",), "foliage reference"),
+}
+
+
+# -- parameters ------------------------------------------------------------------------
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"WxH"`` -> (W, H); a :class:`UsageError` naming the flag otherwise."""
+    m = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", text or "")
+    if not m:
+        raise UsageError(f"--size must be WIDTHxHEIGHT in pixels, e.g. 1024x768; got {text!r}.")
+    w, h = int(m.group(1)), int(m.group(2))
+    if not (1 <= w <= 16384 and 1 <= h <= 16384):
+        raise UsageError(f"--size must be between 1x1 and 16384x16384 pixels, got {w}x{h}.")
+    return w, h
+
+
+def parse_methods(text: str) -> tuple[str, ...]:
+    """``"direct,lb"`` -> ("direct", "lb"), each a known method, no repeats."""
+    names = tuple(n.strip() for n in (text or "").split(",") if n.strip())
+    if not names:
+        raise UsageError(f"--compare needs a comma-separated list of methods ({', '.join(METHODS)}); got {text!r}.")
+    bad = [n for n in names if n not in METHODS]
+    if bad:
+        raise UsageError(f"--compare: unknown method(s) {', '.join(bad)}; choose from {', '.join(METHODS)}.")
+    if len(set(names)) != len(names):
+        raise UsageError(f"--compare lists a method twice: {text!r}.")
+    return names
+
+
+@dataclass(frozen=True)
+class PreviewParams:
+    """What ``foliage preview`` draws and how. Angles in degrees (DESIGN.md convention)."""
+
+    method: str = "direct"
+    """Method whose scattered light is added to the leaves (module table)."""
+    compare: tuple[str, ...] = ()
+    """Methods to show side by side in one labelled image; overrides ``method``."""
+    error_image: bool = False
+    """Add a row of false-colour relative luminance error against ``reference``."""
+    size: tuple[int, int] | None = None
+    """(width, height) pixels; default 1024×1024, or 1024 wide with the aperture's aspect for ``camera``."""
+    camera: str | None = None
+    """Prim path of a ``UsdGeom.Camera`` in the stage; exclusive with the orbit options."""
+    azimuth: float | None = None
+    """Orbit camera azimuth [default 0, on the +X side]."""
+    elevation: float | None = None
+    """Orbit camera elevation [default 15]."""
+    distance: float | None = None
+    """Orbit camera distance from the centre of the bounds, stage units [default: fit the bounds]."""
+    fov: float = 35.0
+    """Vertical field of view of the orbit camera."""
+    sun: tuple[float, float] | None = None
+    """(azimuth, elevation) of the sun; default the stage's DistantLight, else DEFAULT_SUN."""
+    ground: bool = True
+    """Draw a ground plane under the tree(s), receiving their shadow."""
+    frames: int | None = None
+    """Frames of a sequence (``orbit`` and/or ``sun_sweep``); default DEFAULT_SEQUENCE_FRAMES."""
+    orbit: bool = False
+    """Turn the camera once around the up axis over the sequence."""
+    sun_sweep: bool = False
+    """Turn the sun once around the up axis over the sequence, at its elevation."""
+    samples: int = 4
+    """Samples per pixel, a k×k supersampling grid: 1, 4, 9 or 16."""
+    shadow_size: int = 2048
+    """Shadow-map resolution, texels per side."""
+    sky_samples: int = 16
+    """Sky directions tested for occlusion by the trees (0: the sky reaches everything)."""
+    optics: SurfaceOptics = field(default_factory=SurfaceOptics)
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise UsageError(f"--method must be one of {', '.join(METHODS)}, got {self.method!r}.")
+        if self.compare and self.method != "direct":
+            raise UsageError("--method and --compare cannot be combined; list every method in --compare.")
+        if self.size is not None:
+            w, h = self.size
+            if not (isinstance(w, int) and isinstance(h, int) and 1 <= w <= 16384 and 1 <= h <= 16384):
+                raise UsageError(f"--size must be between 1x1 and 16384x16384 pixels, got {w}x{h}.")
+        orbit_flags = [n for n, v in (("--azimuth", self.azimuth), ("--elevation", self.elevation), ("--distance", self.distance)) if v is not None]
+        if self.orbit:
+            orbit_flags.append("--orbit")
+        if self.camera is not None and orbit_flags:
+            raise UsageError(f"--camera cannot be combined with {', '.join(orbit_flags)}: those place the orbit camera.")
+        if self.elevation is not None and not (-90.0 <= self.elevation <= 90.0):
+            raise UsageError(f"--elevation must be between -90 and 90 degrees, got {self.elevation:g}.")
+        if self.azimuth is not None and not math.isfinite(self.azimuth):
+            raise UsageError(f"--azimuth must be a finite number of degrees, got {self.azimuth}.")
+        if self.distance is not None and not (math.isfinite(self.distance) and self.distance > 0):
+            raise UsageError(f"--distance must be a positive number of stage units, got {self.distance:g}.")
+        if not (1.0 <= self.fov <= 170.0):
+            raise UsageError(f"--fov must be between 1 and 170 degrees, got {self.fov:g}.")
+        if self.frames is not None:
+            if not self.orbit and not self.sun_sweep:
+                raise UsageError("--frames needs --orbit and/or --sun-sweep: it sets the length of a sequence.")
+            if not (1 <= self.frames <= 10000):
+                raise UsageError(f"--frames must be between 1 and 10000, got {self.frames}.")
+        if self.samples not in SAMPLES:
+            raise UsageError(f"--samples must be one of {', '.join(map(str, SAMPLES))}, got {self.samples}.")
+        if not (256 <= self.shadow_size <= 8192):
+            raise UsageError(f"--shadow-size must be between 256 and 8192 texels, got {self.shadow_size}.")
+        if not (0 <= self.sky_samples <= MAX_SKY_SAMPLES):
+            raise UsageError(f"--sky-samples must be between 0 and {MAX_SKY_SAMPLES}, got {self.sky_samples}.")
+
+    @property
+    def methods(self) -> tuple[str, ...]:
+        """Methods to render: the comparison, or the one method; plus ``reference`` for the error row."""
+        names = self.compare or (self.method,)
+        if self.error_image and "reference" not in names:
+            names = (*names, "reference")
+        return names
+
+    @property
+    def sequence(self) -> bool:
+        return self.orbit or self.sun_sweep
+
+    @property
+    def frame_count(self) -> int:
+        return (self.frames or DEFAULT_SEQUENCE_FRAMES) if self.sequence else 1
+
+
+# -- scene data ------------------------------------------------------------------------
+
+
+def corner_values(mesh: MeshPart, values: np.ndarray, interpolation: str, *, where: str) -> np.ndarray:
+    """(3T, 3) float32 per-triangle-corner values of a primvar on ``mesh``.
+
+    ``vertex``/``varying`` index the points, ``uniform`` the authored faces,
+    ``constant`` is one value; a single channel is repeated as grey.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim == 1:
+        v = v[:, None]
+    if v.shape[1] == 1:
+        v = np.repeat(v, 3, axis=1)
+    if v.shape[1] != 3:
+        raise InputError(f"{where}: expected colours (3 values per element), got {v.shape[1]} per element.")
+    n_tri = len(mesh.triangles)
+    expected = {"vertex": len(mesh.points), "varying": len(mesh.points), "uniform": mesh.face_count, "constant": 1}
+    if interpolation not in expected:
+        raise InputError(f"{where}: interpolation {interpolation!r} is not supported by the preview (use vertex or uniform).")
+    if len(v) != expected[interpolation]:
+        raise InputError(
+            f"{where}: {len(v)} values for {interpolation} interpolation, the mesh needs {expected[interpolation]}; re-run the bake."
+        )
+    if not np.all(np.isfinite(v)):
+        raise InputError(f"{where}: holds NaN or infinite values; re-run the bake.")
+    if interpolation in ("vertex", "varying"):
+        out = v[mesh.triangles]
+    elif interpolation == "uniform":
+        out = np.repeat(v[mesh.face_of_triangle][:, None, :], 3, axis=1)
+    else:
+        out = np.broadcast_to(v[0], (n_tri, 3, 3))
+    return np.ascontiguousarray(out, dtype=np.float32).reshape(-1, 3)
+
+
+def load_method_data(path: Path, scene: Scene, methods: tuple[str, ...], warnings: list[str]) -> dict[str, dict[str, np.ndarray]]:
+    """Per method (except ``direct``): {leaf mesh path: (3T, 3) E_scattered at each corner}.
+
+    Raises :class:`InputError` naming the command that writes a method's data
+    when no leaf mesh has it.
+    """
+    from foliage_tools.scene.primvars import read_mesh_primvars
+
+    wanted = [m for m in methods if m != "direct"]
+    if not wanted:
+        return {}
+    leaf_meshes = {m.path: m for p in scene.prototypes for m in p.meshes if m.is_leaf}
+    if not leaf_meshes:
+        raise InputError(f"@{path}@ has no leaf meshes, so it holds no {', '.join(wanted)} data to preview.")
+    names = sorted({n for m in wanted for n in (METHOD_DATA[m].required, *METHOD_DATA[m].sources)})
+    found = read_mesh_primvars(path, names, list(leaf_meshes))
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for method in wanted:
+        spec = METHOD_DATA[method]
+        have_required = found[spec.required]
+        if not have_required and not any(found[s] for s in spec.sources):
+            raise InputError(
+                f"@{path}@ has no {method} data: no leaf mesh has primvars:{spec.required}. Run `{spec.command} {path} -o OUT.usda` "
+                f"and preview OUT.usda (or use --method direct)."
+            )
+        per_mesh = {}
+        for mesh_path, mesh in leaf_meshes.items():
+            source = next((s for s in spec.sources if mesh_path in found[s]), None)
+            if source is None:
+                continue
+            pv = found[source][mesh_path]
+            per_mesh[mesh_path] = corner_values(mesh, pv.values, pv.interpolation, where=f"@{path}@ <{mesh_path}> primvars:{source}")
+            if np.any(per_mesh[mesh_path] < 0):
+                warnings.append(f"{path}: <{mesh_path}> primvars:{source} has negative irradiance; drawn as 0.")
+        if not per_mesh:
+            raise InputError(
+                f"@{path}@: the {method} bake marker primvars:{spec.required} is there, but no leaf mesh has the scattered irradiance "
+                f"({' or '.join('primvars:' + s for s in spec.sources)}) the preview shades with. Re-run `{spec.command}`."
+            )
+        missing = [p for p in leaf_meshes if p not in per_mesh]
+        if missing:
+            warnings.append(
+                f"{path}: {len(missing)} leaf mesh(es) have no {method} data (e.g. <{missing[0]}>); their scattered light is drawn as 0."
+            )
+        out[method] = per_mesh
+    return out
+
+
+@dataclass(frozen=True)
+class SunAndSky:
+    lighting: Lighting
+    azimuth: float
+    elevation: float
+    source: str
+    sky_source: str
+
+
+def choose_lighting(scene: Scene, sun: tuple[float, float] | None, warnings: list[str]) -> SunAndSky:
+    """Sun and sky from the flag, else the stage's lights, else the DESIGN.md default sun and a default sky."""
+    distant = [light for light in scene.lights if light.kind == "distant"]
+    domes = [light for light in scene.lights if light.kind == "dome"]
+    if sun is not None:
+        az, el = sun
+        direction, irradiance, source = direction_from_angles(az, el, scene.up_axis), (1.0, 1.0, 1.0), "--sun"
+    elif distant:
+        if len(distant) > 1:
+            warnings.append(f"{scene.path}: {len(distant)} distant lights; the preview uses <{distant[0].path}> as the sun.")
+        direction = np.asarray(distant[0].direction, dtype=np.float64)
+        # DESIGN.md section 3: the sun delivers irradiance 1; its colour tints it
+        irradiance, source = tuple(float(c) for c in distant[0].color), f"<{distant[0].path}>"
+        az, el = angles_from_direction(direction, scene.up_axis)
+    else:
+        az, el = DEFAULT_SUN
+        direction, irradiance, source = direction_from_angles(az, el, scene.up_axis), (1.0, 1.0, 1.0), "default"
+    if domes:
+        # a dome light's intensity × colour is the sky's radiance (UsdLux)
+        sky = tuple(float(domes[0].intensity * c) for c in domes[0].color)
+        sky_source = f"<{domes[0].path}>"
+    else:
+        sky, sky_source = DEFAULT_SKY_RADIANCE, "default"
+    return SunAndSky(Lighting(direction, irradiance, sky), az, el, source, sky_source)
+
+
+# -- output ----------------------------------------------------------------------------
+
+
+def frame_paths(out: Path, count: int, sequence: bool) -> list[Path]:
+    if not sequence:
+        return [out]
+    return [out.with_name(f"{out.stem}.{i:04d}{out.suffix}") for i in range(1, count + 1)]
+
+
+def _exposure_source(frames: dict[str, Frame]) -> tuple[str, Frame]:
+    name = "reference" if "reference" in frames else next(iter(frames))
+    return name, frames[name]
+
+
+def _over_sky(frame: Frame) -> np.ndarray:
+    """Linear radiance of the picture over the sky colour."""
+    return frame.radiance + (1.0 - frame.alpha)[..., None] * np.asarray(frame.sky, np.float32)
+
+
+def _display(frame: Frame, exposure: Exposure) -> np.ndarray:
+    """Tone-mapped, display-linear RGB over the sky."""
+    return reinhard(_over_sky(frame), exposure)
+
+
+def compose(frames: dict[str, Frame], exposure: Exposure, fmt: str, *, error_image: bool, comparison: bool) -> np.ndarray:
+    """The pixels to write for one frame: (H, W, C) float32, display-encoded for PNG, linear for EXR."""
+    if not comparison:
+        frame = next(iter(frames.values()))
+        if fmt == "exr":
+            return np.concatenate([frame.radiance, frame.alpha[..., None]], axis=2)
+        return srgb_encode(_display(frame, exposure))
+    if fmt == "exr":
+        panels = [_over_sky(frames[n]) for n in frames]
+    else:
+        panels = [_display(frames[n], exposure) for n in frames]
+    rows, labels = [panels], [list(frames)]
+    if error_image:
+        ref = frames["reference"]
+        errs, names = [], []  # one error panel per non-reference method
+        for n, f in frames.items():
+            if n == "reference":
+                continue
+            errs.append(false_colour(relative_error(f.radiance, ref.radiance, ref.tree)))
+            names.append(f"{n} vs reference (blue -50% .. red +50%)")
+        if errs:
+            rows.append(errs)
+            labels.append(names)
+    # labels are white: 1.0 is display white, and a bright radiance for EXR
+    image = side_by_side(rows, labels, ink=1.0)
+    return srgb_encode(image) if fmt == "png" else image
+
+
+# -- the stage -------------------------------------------------------------------------
+
+
+def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progress | None = None) -> Report:
+    """Render ``path`` and write ``out`` (or a numbered sequence beside it). Returns the report."""
+    from foliage_tools.scene.image import image_format, image_sequence
+    from foliage_tools.scene.read import read_scene
+
+    progress = progress or Silent()
+    report = Report(command="preview", inputs=[str(path)])
+    fmt = image_format(out)
+    if Path(out).resolve() == Path(path).resolve():
+        raise OutputError(f"@{out}@ is the input file; give another output path.")
+    paths = frame_paths(Path(out), params.frame_count, params.sequence)
+
+    progress.step(f"reading {path}")
+    scene, warnings = read_scene(path)
+    report.warnings.extend(warnings)
+    if not scene.prototypes or not scene.instances or not any(len(m.triangles) for p in scene.prototypes for m in p.meshes):
+        raise InputError(f"@{path}@ has no mesh geometry to preview; is it a tree asset?")
+    methods = params.methods
+    data = load_method_data(Path(path), scene, methods, report.warnings)
+    draw = DrawScene.from_scene(scene, data)
+    bounds = draw.bounds()
+    up = scene.up
+    ground = Ground.under(bounds, up) if params.ground else None
+    clip_bounds = bounds if ground is None else np.stack([np.minimum(bounds[0], ground.bounds(up)[0]), np.maximum(bounds[1], ground.bounds(up)[1])])
+    light = choose_lighting(scene, params.sun, report.warnings)
+
+    usd_cam = None
+    if params.camera is not None:
+        from foliage_tools.scene.camera_read import read_camera
+
+        usd_cam = read_camera(path, params.camera)
+        size = params.size or usd_camera_size(usd_cam.horizontal_aperture, usd_cam.vertical_aperture, DEFAULT_SIZE[0])
+    else:
+        size = params.size or DEFAULT_SIZE
+    width, height = size
+    cam_az = 0.0 if params.azimuth is None else params.azimuth
+    cam_el = 15.0 if params.elevation is None else params.elevation
+
+    def camera_for(i: int) -> Camera:
+        if usd_cam is not None:
+            return camera_from_usd(
+                transform=usd_cam.transform, projection=usd_cam.projection, focal_length=usd_cam.focal_length,
+                horizontal_aperture=usd_cam.horizontal_aperture, vertical_aperture=usd_cam.vertical_aperture,
+                horizontal_aperture_offset=usd_cam.horizontal_aperture_offset, vertical_aperture_offset=usd_cam.vertical_aperture_offset,
+                clipping_range=usd_cam.clipping_range, width=width, height=height, name=f"@{path}@ <{usd_cam.path}>",
+            )
+        az = cam_az + (360.0 * i / params.frame_count if params.orbit else 0.0)
+        return orbit_camera(
+            bounds, width=width, height=height, up_axis=scene.up_axis, azimuth=az, elevation=cam_el,
+            distance=params.distance, fovy=params.fov, clip_bounds=clip_bounds,
+        )
+
+    def lighting_for(i: int) -> Lighting:
+        if not params.sun_sweep:
+            return light.lighting
+        az = light.azimuth + 360.0 * i / params.frame_count
+        return Lighting(direction_from_angles(az, light.elevation, scene.up_axis), light.lighting.sun_irradiance, light.lighting.sky_radiance)
+
+    comparison = bool(params.compare) or params.error_image
+    frame_seconds: list[float] = []
+    method_stats: dict[str, dict] = {}
+    exposure: Exposure | None = None
+    progress.step(f"rendering {len(paths)} frame(s) of {', '.join(methods)} at {width}x{height}", total=len(paths))
+    with Renderer(draw, samples=params.samples, shadow_size=params.shadow_size, sky_samples=params.sky_samples) as renderer, image_sequence(paths) as write:
+        for i, target in enumerate(paths):
+            cam, lighting = camera_for(i), lighting_for(i)
+            frames = {}
+            for m in methods:
+                frames[m] = renderer.render(cam, lighting, params.optics, method=None if m == "direct" else m, ground=ground)
+                frame_seconds.append(frames[m].seconds)
+            if exposure is None:
+                _, f0 = _exposure_source(frames)
+                exposure = measure_exposure(f0.radiance, f0.tree if f0.tree.max() > 0.5 else f0.alpha, white_rgb=_over_sky(f0))
+            if i == 0:
+                method_stats = _method_stats(frames)
+            write(target, compose(frames, exposure, fmt, error_image=params.error_image, comparison=comparison))
+            progress.advance()
+        renderer_name = renderer.renderer_name
+        samples = renderer.samples
+    report.outputs = [str(p) for p in paths]
+    report.stats = {
+        "methods": list(methods),
+        "format": fmt,
+        "size": [width, height],
+        "frames": len(paths),
+        "samples": samples,
+        "shadow_size": params.shadow_size,
+        "sky_samples": params.sky_samples,
+        "renderer": renderer_name,
+        "triangles": draw.triangle_count,
+        "instances": draw.instance_count,
+        "bounds": bounds.tolist(),
+        "camera": {"source": params.camera or "orbit", "azimuth": None if usd_cam else cam_az, "elevation": None if usd_cam else cam_el,
+                   "position": camera_for(0).position.tolist()},
+        "sun": {"azimuth": light.azimuth, "elevation": light.elevation, "direction": np.asarray(light.lighting.sun_direction).tolist(),
+                "source": light.source, "sweep": params.sun_sweep},
+        "sky": {"radiance": list(light.lighting.sky_radiance), "source": light.sky_source},
+        "ground": params.ground,
+        "exposure": {"log_average": exposure.log_average, "white": exposure.white, "key": exposure.key},
+        "seconds_per_render": float(np.median(frame_seconds)),
+        "per_method": method_stats,
+    }
+    return report.finish()
+
+
+def _method_stats(frames: dict[str, Frame]) -> dict[str, dict]:
+    stats = {}
+    ref = frames.get("reference")
+    for name, f in frames.items():
+        # pixels fully on the tree: edge pixels mix in the background and depend on antialiasing
+        inside = f.tree > 0.999 if np.any(f.tree > 0.999) else f.tree > 0.5
+        s = {
+            "tree_coverage": float(f.tree.mean()),
+            "mean_tree_luminance": float(luminance(f.radiance)[inside].mean()) if inside.any() else 0.0,
+            "seconds": f.seconds,
+        }
+        if ref is not None and name != "reference":
+            s["rel_rms_vs_reference"] = rel_rms(f.radiance, ref.radiance, ref.tree)
+        stats[name] = s
+    return stats

@@ -1,0 +1,778 @@
+"""Rasterise a tree scene with moderngl: headless GL context, programs, shadow map, drawing.
+
+A frame is made of these passes:
+
+1. **Sky pass** (once per scene) -- orthographic depth maps of the trees seen
+   from up to 16 directions spread evenly over the sky, tiled in one texture;
+   the shader uses them for the fraction of the sky each point sees.
+2. **Shadow pass** -- an orthographic depth map seen from the sun, fitted to
+   the world bounds of the tree geometry, with both faces of every triangle
+   (leaves are thin cards). Re-drawn only when the sun moves.
+3. **Main pass** -- leaves (two-sided: reflection, transmission, glossy lobe),
+   wood (opaque Lambertian) and the optional ground plane into a float
+   framebuffer holding linear radiance and a tree mask, read back as numpy
+   arrays.
+
+Antialiasing is supersampling: the main pass renders k×k samples per pixel
+and the image is box-filtered down on read-back. On Mesa's llvmpipe this is
+about twice as fast as 4× MSAA at equal sample count (measured: 0.84 s vs
+1.8 s for 200k triangles at 1024²), shades every sample, and gives the same
+result on every driver.
+
+Geometry is uploaded once per :class:`DrawScene`: one vertex buffer per
+prototype and material, and one buffer of per-instance matrices, so a forest
+costs one instanced draw call per prototype and material.
+
+Shading is in ``shaders/*.glsl`` (equations cited there); the optics come
+from :mod:`foliage_tools.preview.optics`. This module knows nothing of USD or
+files.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+from collections.abc import Mapping
+
+import numpy as np
+
+from foliage_tools.errors import OutputError, UsageError
+from foliage_tools.preview.camera import Camera, bounds_corners, look_at, orthographic
+from foliage_tools.preview.optics import SurfaceOptics
+from foliage_tools.scene.model import Scene
+
+RGB = tuple[float, float, float]
+MAX_SKY_SAMPLES = 16
+"""Sky directions whose occlusion is tested (``MAX_SKY`` in ``shaders/sky.glsl``)."""
+SKY_TILE = 512
+"""Texels per side of each sky direction's depth map."""
+SKY_CACHE_WIDTH = 4096
+"""Texels per row of the per-vertex sky-visibility textures."""
+SAMPLES = (1, 4, 9, 16)
+"""Samples per pixel: a k×k grid of supersamples (k = 1..4), box-filtered down."""
+
+
+# -- what is drawn -----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DrawMesh:
+    """Triangles of one material of one prototype, un-indexed (3 corners per triangle)."""
+
+    corners: np.ndarray
+    """(3T, 3) float32 corner positions in prototype space, stage units."""
+    leaf: bool
+    """Leaves (two-sided, translucent) or wood (opaque)."""
+    indirect: Mapping[str, np.ndarray] = field(default_factory=dict)
+    """Per method name: (3T, 3) float32 scattered irradiance E_scattered at each corner (leaves only)."""
+
+    def __post_init__(self) -> None:
+        if self.corners.ndim != 2 or self.corners.shape[1] != 3 or self.corners.shape[0] % 3:
+            raise ValueError(f"corners must be (3T, 3), got {self.corners.shape}")
+        for name, values in self.indirect.items():
+            if values.shape != self.corners.shape:
+                raise ValueError(f"indirect term {name!r} has shape {values.shape}, corners {self.corners.shape}")
+
+    @property
+    def triangle_count(self) -> int:
+        return self.corners.shape[0] // 3
+
+
+@dataclass(frozen=True)
+class DrawPrototype:
+    meshes: tuple[DrawMesh, ...]
+    transforms: np.ndarray
+    """(N, 4, 4) float64 world-from-prototype matrices (column-vector convention), one per instance."""
+
+    def world_bounds(self) -> np.ndarray | None:
+        pts = [m.corners for m in self.meshes if len(m.corners)]
+        if not pts or not len(self.transforms):
+            return None
+        allp = np.concatenate(pts).astype(np.float64)
+        box = bounds_corners(np.stack([allp.min(axis=0), allp.max(axis=0)]))
+        world = np.einsum("nij,kj->nki", self.transforms[:, :3, :3], box) + self.transforms[:, None, :3, 3]
+        world = world.reshape(-1, 3)
+        return np.stack([world.min(axis=0), world.max(axis=0)])
+
+
+@dataclass(frozen=True)
+class DrawScene:
+    """Everything the renderer draws, in plain arrays."""
+
+    prototypes: tuple[DrawPrototype, ...]
+    up: np.ndarray
+    """(3,) unit up axis of the stage."""
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles drawn per pass, instances included."""
+        return sum(m.triangle_count * len(p.transforms) for p in self.prototypes for m in p.meshes)
+
+    @property
+    def instance_count(self) -> int:
+        return sum(len(p.transforms) for p in self.prototypes)
+
+    @property
+    def methods(self) -> set[str]:
+        return {k for p in self.prototypes for m in p.meshes for k in m.indirect}
+
+    def bounds(self) -> np.ndarray:
+        """(2, 3) world-space box around all instances (of each prototype's box corners)."""
+        boxes = [b for b in (p.world_bounds() for p in self.prototypes) if b is not None]
+        if not boxes:
+            raise ValueError("the scene has no geometry to draw")
+        b = np.stack(boxes)
+        return np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
+
+    @classmethod
+    def from_scene(cls, scene: Scene, indirect: Mapping[str, Mapping[str, np.ndarray]] | None = None) -> DrawScene:
+        """Merge each prototype's meshes into one leaf and one wood :class:`DrawMesh`.
+
+        ``indirect`` maps a method name to ``{mesh prim path: (T, 3, 3) or (3T, 3)
+        E_scattered per triangle corner}``; leaf meshes a method does not cover get 0.
+        """
+        indirect = indirect or {}
+        protos = []
+        for k, proto in enumerate(scene.prototypes):
+            transforms = np.array([inst.transform for inst in scene.instances if inst.prototype == k], dtype=np.float64).reshape(-1, 4, 4)
+            if not len(transforms):
+                continue
+            meshes = []
+            for leaf in (True, False):
+                parts = [m for m in proto.meshes if m.is_leaf == leaf and len(m.triangles)]
+                if not parts:
+                    continue
+                corners = np.concatenate([m.points[m.triangles].reshape(-1, 3) for m in parts]).astype(np.float32)
+                terms = {}
+                for method, per_mesh in indirect.items():
+                    if not leaf or not any(m.path in per_mesh for m in parts):
+                        continue
+                    terms[method] = np.concatenate(
+                        [
+                            np.asarray(per_mesh[m.path], dtype=np.float32).reshape(-1, 3)
+                            if m.path in per_mesh
+                            else np.zeros((3 * len(m.triangles), 3), np.float32)
+                            for m in parts
+                        ]
+                    )
+                meshes.append(DrawMesh(corners=corners, leaf=leaf, indirect=terms))
+            protos.append(DrawPrototype(meshes=tuple(meshes), transforms=transforms))
+        return cls(prototypes=tuple(protos), up=scene.up)
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Sun and sky, in the units of DESIGN.md section 3."""
+
+    sun_direction: np.ndarray
+    """(3,) unit vector toward the sun."""
+    sun_irradiance: RGB = (1.0, 1.0, 1.0)
+    """Irradiance on a plane perpendicular to the sun (1 per channel by the DESIGN contract, times the sun's colour)."""
+    sky_radiance: RGB = (0.0, 0.0, 0.0)
+    """Uniform radiance of the sky hemisphere (a dome light's intensity × colour)."""
+
+    def __post_init__(self) -> None:
+        d = np.asarray(self.sun_direction, dtype=np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or not np.linalg.norm(d) > 0:
+            raise ValueError(f"sun direction must be a finite non-zero 3-vector, got {self.sun_direction!r}")
+        for name in ("sun_irradiance", "sky_radiance"):
+            v = getattr(self, name)
+            if len(v) != 3 or not all(math.isfinite(c) and c >= 0 for c in v):
+                raise ValueError(f"{name} must be three finite values >= 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class Ground:
+    """A Lambertian ground disc through ``point``, perpendicular to the up axis.
+
+    Tessellated in rings whose radii grow geometrically from ``detail`` to
+    ``radius``: the sky visibility is evaluated per vertex, so the mesh is fine
+    under the trees, where their occlusion varies, and coarse far away.
+    """
+
+    point: np.ndarray
+    radius: float
+    detail: float | None = None
+    """Radius of the innermost ring [default: radius / 1000]."""
+    rings: int = 48
+    segments: int = 64
+
+    @classmethod
+    def under(cls, bounds: np.ndarray, up: np.ndarray, *, extent: float = 50.0) -> Ground:
+        """Under the lowest point of ``bounds``, ``extent`` times the largest side of ``bounds`` in radius.
+
+        Large enough that its far edge lies close to the horizon in any orbit
+        view (a small ground would show its edge as a false horizon).
+        """
+        lo, hi = np.asarray(bounds, dtype=np.float64)
+        centre = (lo + hi) / 2
+        point = centre - up * (centre @ up) + up * float(lo @ up)
+        size = max(float(np.ptp(np.asarray(bounds), axis=0).max()), 1e-6)
+        return cls(point=point, radius=extent * size, detail=size / 32)
+
+    def bounds(self, up: np.ndarray) -> np.ndarray:
+        flat = self.radius * (1 - np.abs(up))
+        return np.stack([self.point - flat, self.point + flat])
+
+    def corners(self, up: np.ndarray) -> np.ndarray:
+        """(3T, 3) float64 triangle corners of the disc, counter-clockwise seen from above."""
+        a = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        u = np.cross(up, a)
+        u /= np.linalg.norm(u)
+        v = np.cross(up, u)  # (u, v, up) is right-handed: increasing angle turns counter-clockwise about up
+        detail = self.detail or self.radius / 1000
+        radii = detail * (self.radius / detail) ** (np.arange(self.rings) / (self.rings - 1))
+        phi = np.linspace(0.0, 2 * np.pi, self.segments + 1)
+        ring = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v  # (S+1, 3), closed
+        pts = self.point + radii[:, None, None] * ring[None]  # (R, S+1, 3)
+        centre = np.broadcast_to(self.point, (self.segments, 3))
+        fan = np.stack([centre, pts[0, :-1], pts[0, 1:]], axis=1)
+        a0, a1 = pts[:-1, :-1], pts[:-1, 1:]  # inner ring
+        b0, b1 = pts[1:, :-1], pts[1:, 1:]  # outer ring
+        quads = np.concatenate([np.stack([a0, b0, b1], axis=2), np.stack([a0, b1, a1], axis=2)]).reshape(-1, 3, 3)
+        return np.concatenate([fan, quads]).reshape(-1, 3)
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One rendered image, top row first."""
+
+    radiance: np.ndarray
+    """(H, W, 3) float32 linear RGB radiance toward the camera, premultiplied by ``alpha`` (background 0)."""
+    alpha: np.ndarray
+    """(H, W) float32 coverage of any geometry (tree and ground), antialiased."""
+    tree: np.ndarray
+    """(H, W) float32 coverage of the tree (leaves and wood) only."""
+    sky: RGB
+    """Radiance of the sky behind the geometry: ``radiance + (1 - alpha) * sky`` is the picture over the sky."""
+    seconds: float
+    """Wall time of the draw and read-back."""
+
+
+# -- the GL side -----------------------------------------------------------------------
+
+
+def _shader(name: str) -> str:
+    return (resources.files("foliage_tools.preview") / "shaders" / name).read_text(encoding="utf-8")
+
+
+def _mat(m: np.ndarray) -> bytes:
+    """numpy (row-major) 4×4 -> GLSL column-major bytes."""
+    return np.ascontiguousarray(np.asarray(m, dtype=np.float64).T, dtype=np.float32).tobytes()
+
+
+INSTANCE_LAYOUT = ("16f 9f/i", "in_model", "in_normal_matrix")
+
+
+def _instance_data(transforms: np.ndarray) -> np.ndarray:
+    """(N, 25) float32 per instance: the column-major 4×4 matrix, then the column-major 3×3 normal matrix.
+
+    The normal matrix, the inverse transpose of the linear part, maps a front
+    normal to the front normal of the transformed surface, mirrors included.
+    """
+    t = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4)
+    lin = t[:, :3, :3]
+    # a zero-scale instance draws nothing (its triangles collapse); give it a zero normal matrix
+    ok = np.abs(np.linalg.det(lin)) > 1e-300
+    normal = np.zeros_like(lin)
+    normal[ok] = np.linalg.inv(lin[ok]).transpose(0, 2, 1)
+    out = np.empty((len(t), 25), np.float32)
+    out[:, :16] = t.transpose(0, 2, 1).reshape(-1, 16)
+    out[:, 16:] = normal.transpose(0, 2, 1).reshape(-1, 9)
+    return out
+
+
+def face_normals(corners: np.ndarray) -> np.ndarray:
+    """(3T, 3) float32: each triangle's right-handed unit normal at its three corners (0 for degenerate ones)."""
+    tri = np.asarray(corners, dtype=np.float64).reshape(-1, 3, 3)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+    return np.repeat(n, 3, axis=0).astype(np.float32)
+
+
+def sky_directions(count: int, up: np.ndarray) -> np.ndarray:
+    """(count, 3) unit directions spread evenly (in solid angle) over the hemisphere around ``up``.
+
+    A Fibonacci spiral: equal-area bands in cos(zenith) (the area element of a
+    sphere is d(cos θ) dφ), azimuths stepped by the golden angle. Deterministic.
+    """
+    if count == 0:
+        return np.zeros((0, 3))
+    i = np.arange(count) + 0.5
+    cos_t = 1.0 - i / count  # uniform in (0, 1): equal solid angle per direction
+    sin_t = np.sqrt(1.0 - cos_t**2)
+    phi = i * math.pi * (3.0 - math.sqrt(5.0))
+    a = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(up, a)
+    u /= np.linalg.norm(u)
+    v = np.cross(up, u)
+    return (sin_t * np.cos(phi))[:, None] * u + (sin_t * np.sin(phi))[:, None] * v + cos_t[:, None] * up
+
+
+def _padded(rows: np.ndarray, n: int) -> np.ndarray:
+    out = np.zeros((n, rows.shape[1] if rows.ndim == 2 and rows.size else 3))
+    out[: len(rows)] = rows
+    return out
+
+
+def _box_filter(samples: np.ndarray, k: int) -> np.ndarray:
+    """Average each k×k block of a (kH, kW, ...) array: one pixel from its supersamples.
+
+    Summing k² strided views is several times faster than ``reshape().mean()``
+    on large float32 images; float32 is ample for a mean of at most 16 values.
+    """
+    if k == 1:
+        return np.ascontiguousarray(samples)
+    acc = np.zeros((samples.shape[0] // k, samples.shape[1] // k, *samples.shape[2:]), np.float32)
+    for i in range(k):
+        for j in range(k):
+            acc += samples[i::k, j::k]
+    acc *= np.float32(1.0 / (k * k))
+    return acc
+
+
+def create_context():
+    """A headless OpenGL >= 3.3 context: EGL first (no display needed), then the platform default."""
+    import moderngl
+
+    errors = []
+    for kwargs in ({"backend": "egl"}, {}):
+        try:
+            return moderngl.create_standalone_context(require=330, **kwargs)
+        except Exception as exc:  # moderngl raises plain Exception for every context failure
+            errors.append(f"{kwargs.get('backend', 'default')}: {exc}")
+    raise OutputError(
+        "cannot create an OpenGL 3.3 context for the preview (" + "; ".join(errors) + "). On a headless Linux "
+        "machine install Mesa's EGL drivers (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri)."
+    )
+
+
+@dataclass
+class _Draw:
+    """GPU buffers of one :class:`DrawMesh` and the instances of its prototype."""
+
+    key: tuple[int, int]
+    """(prototype index, mesh index)."""
+    leaf: bool
+    positions: object
+    normals: object
+    instances: object
+    instance_count: int
+    indirect: dict[str, object]
+    triangle_count: int = 0
+    sky_cache: object = None
+    """RG float texture: sky visibility (front, back) per vertex and instance, written once by the sky pass."""
+    sky_cache_width: int = 1
+
+
+class Renderer:
+    """Owns a GL context and the GPU copies of one :class:`DrawScene`.
+
+    Use as a context manager, or call :meth:`release`. One renderer can draw
+    many frames (cameras, suns, methods) of the scene it was given.
+    """
+
+    def __init__(self, scene: DrawScene, *, samples: int = 4, shadow_size: int = 2048, sky_samples: int = 16) -> None:
+        if not (0 <= sky_samples <= MAX_SKY_SAMPLES):
+            raise UsageError(f"--sky-samples must be between 0 (no sky occlusion) and {MAX_SKY_SAMPLES}, got {sky_samples}.")
+        if samples not in SAMPLES:
+            raise UsageError(f"--samples must be one of {', '.join(map(str, SAMPLES))} (a k×k grid per pixel), got {samples}.")
+        if not (256 <= shadow_size <= 8192):
+            raise UsageError(f"--shadow-size must be between 256 and 8192 texels, got {shadow_size}.")
+        self.scene = scene
+        self.bounds = scene.bounds()
+        self.ctx = create_context()
+        self.samples = samples
+        self.supersample = math.isqrt(samples)
+        self.max_size = int(self.ctx.info.get("GL_MAX_RENDERBUFFER_SIZE", 8192) or 8192)
+        self.max_texture = int(self.ctx.info.get("GL_MAX_TEXTURE_SIZE", 8192) or 8192)
+        self.shadow_size = shadow_size
+        self.renderer_name = str(self.ctx.info.get("GL_RENDERER", "unknown"))
+        self._programs: dict[tuple[str, bool], object] = {}
+        self._vaos: dict[tuple, object] = {}
+        self._buffers: list = []
+        self._targets = None
+        self._target_size: tuple[int, int] | None = None
+        self._shadow_key: tuple | None = None
+        self._upload()
+        self._shadow_tex = self.ctx.depth_texture((shadow_size, shadow_size))
+        self._shadow_tex.compare_func = "<="
+        self._shadow_tex.repeat_x = self._shadow_tex.repeat_y = False
+        self._shadow_fbo = self.ctx.framebuffer(depth_attachment=self._shadow_tex)
+        self._light_vp = np.eye(4)
+        self._texel_world = 0.0
+        self._depth_range = 1.0
+        self.sky_samples = sky_samples
+        self._sky_dirs = sky_directions(sky_samples, np.asarray(scene.up, dtype=np.float64))
+        self._sky_tiles = max(1, math.ceil(math.sqrt(sky_samples)))
+        self._sky_tex = self.ctx.depth_texture((self._sky_tiles * SKY_TILE,) * 2)
+        self._sky_tex.compare_func = "<="
+        self._sky_tex.repeat_x = self._sky_tex.repeat_y = False
+        self._sky_fbo = self.ctx.framebuffer(depth_attachment=self._sky_tex)
+        self._sky_vps = np.tile(np.eye(4), (MAX_SKY_SAMPLES, 1, 1))
+        self._sky_texel_world = 0.0
+        self._sky_depth_bias = 0.0
+        self._sky_done = False
+
+    # -- resources --------------------------------------------------------------
+    def _program(self, kind: str, indirect: bool = False):
+        """``shadow`` (depth only), ``skycache`` (transform feedback), or the surfaces ``leaf``, ``wood``, ``ground``."""
+        key = (kind, indirect)
+        if key not in self._programs:
+            version = "#version 330 core\n"
+            if kind == "shadow":
+                vert = version + "#define DEPTH_ONLY\n" + _shader("sky.glsl") + _shader("scene.vert.glsl")
+                self._programs[key] = self.ctx.program(vertex_shader=vert, fragment_shader=version + _shader("shadow.frag.glsl"))
+            elif kind == "skycache":
+                vert = version + _shader("sky.glsl") + _shader("sky_cache.vert.glsl")
+                self._programs[key] = self.ctx.program(vertex_shader=vert, varyings=["o_sky"])
+            else:
+                defines = version + ("#define HAS_INDIRECT\n" if indirect else "")
+                # the trees read their sky visibility from the per-scene cache; the ground computes its own
+                cached = "#define SKY_CACHED\n" if kind != "ground" and self.sky_samples else ""
+                vert = defines + cached + _shader("sky.glsl") + _shader("scene.vert.glsl")
+                frag = defines + f"#define {kind.upper()}\n" + _shader("lighting.glsl") + _shader("surface.frag.glsl")
+                self._programs[key] = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
+        return self._programs[key]
+
+    def _buffer(self, data: np.ndarray):
+        buf = self.ctx.buffer(np.ascontiguousarray(data, dtype=np.float32).tobytes())
+        self._buffers.append(buf)
+        return buf
+
+    def _upload(self) -> None:
+        self._draws: list[_Draw] = []
+        for i, proto in enumerate(self.scene.prototypes):
+            inst = self._buffer(_instance_data(proto.transforms))
+            for j, mesh in enumerate(proto.meshes):
+                if not mesh.triangle_count:
+                    continue
+                self._draws.append(
+                    _Draw(
+                        key=(i, j),
+                        leaf=mesh.leaf,
+                        positions=self._buffer(mesh.corners),
+                        normals=self._buffer(face_normals(mesh.corners)),
+                        instances=inst,
+                        instance_count=len(proto.transforms),
+                        indirect={name: self._buffer(values) for name, values in mesh.indirect.items()},
+                        triangle_count=mesh.triangle_count,
+                    )
+                )
+        self._ground_inst = self._buffer(_instance_data(np.eye(4)[None]))
+        self._ground_vbo = None
+        self._ground_nbo = None
+        self._ground_key: tuple | None = None
+
+    def _vao(self, program_key: tuple[str, bool], draw: _Draw, indirect_name: str | None):
+        key = (program_key, draw.key, indirect_name)
+        if key not in self._vaos:
+            prog = self._program(*program_key)
+            content = [(draw.positions, "3f", "in_position"), (draw.instances, *INSTANCE_LAYOUT)]
+            if program_key[0] != "shadow":
+                content.append((draw.normals, "3f", "in_normal"))
+            if indirect_name is not None:
+                content.append((draw.indirect[indirect_name], "3f", "in_indirect"))
+            self._vaos[key] = self.ctx.vertex_array(prog, content, skip_errors=True)
+        return self._vaos[key]
+
+    def _ground_vao(self, ground: Ground):
+        key = (tuple(np.asarray(ground.point, dtype=np.float64)), ground.radius, ground.detail, ground.rings, ground.segments)
+        if self._ground_key != key:
+            old_vao = self._vaos.pop(("ground",), None)
+            if old_vao is not None:
+                old_vao.release()
+            for buf in (self._ground_vbo, self._ground_nbo):
+                if buf is not None:
+                    self._buffers.remove(buf)
+                    buf.release()
+            corners = ground.corners(np.asarray(self.scene.up, dtype=np.float64)).astype(np.float32)
+            self._ground_vbo = self._buffer(corners)
+            self._ground_nbo = self._buffer(face_normals(corners))
+            self._ground_key = key
+        key = ("ground",)
+        if key not in self._vaos:
+            prog = self._program("ground")
+            self._vaos[key] = self.ctx.vertex_array(
+                prog,
+                [(self._ground_vbo, "3f", "in_position"), (self._ground_nbo, "3f", "in_normal"), (self._ground_inst, *INSTANCE_LAYOUT)],
+                skip_errors=True,
+            )
+        return self._vaos[key]
+
+    def _render_targets(self, width: int, height: int):
+        """Float radiance + tree mask + depth at the supersampled size (reused while the size stays)."""
+        if self._target_size != (width, height):
+            if self._targets is not None:
+                for obj in self._targets:
+                    obj.release()
+            color = self.ctx.renderbuffer((width, height), 4, dtype="f4")
+            mask = self.ctx.renderbuffer((width, height), 1, dtype="f4")
+            depth = self.ctx.depth_renderbuffer((width, height))
+            self._fbo = self.ctx.framebuffer([color, mask], depth)
+            self._targets = [color, mask, depth, self._fbo]
+            self._target_size = (width, height)
+        return self._fbo
+
+    # -- shadow and sky-visibility passes --------------------------------------------------
+    def _fit_light(self, direction: np.ndarray, size: int) -> tuple[np.ndarray, float, float]:
+        """Orthographic view-projection looking along −``direction`` that holds the scene bounds.
+
+        Returns (view-projection, world size of a texel, depth range in world units).
+        """
+        lo, hi = self.bounds
+        centre = (lo + hi) / 2
+        radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
+        up = np.asarray(self.scene.up, dtype=np.float64)
+        up_hint = up if abs(direction @ up) < 0.99 else np.array([1.0, 0.0, 0.0]) if abs(direction[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        view = look_at(centre + direction * 2 * radius, centre, up_hint)
+        rel = np.c_[bounds_corners(self.bounds), np.ones(8)] @ view.T
+        (x0, y0, z0), (x1, y1, z1) = rel[:, :3].min(axis=0), rel[:, :3].max(axis=0)
+        # square texels, padded by two texels so the PCF kernel stays inside the map
+        side = max(x1 - x0, y1 - y0, 1e-6)
+        pad = 2.0 * side / size
+        cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+        half = side / 2 + pad
+        depth_pad = 0.01 * (z1 - z0) + pad
+        proj = orthographic(cx - half, cx + half, cy - half, cy + half, -z1 - depth_pad, -z0 + depth_pad)
+        return proj @ view, 2 * half / size, (z1 - z0) + 2 * depth_pad
+
+    def _draw_depth(self, view_projection: np.ndarray) -> None:
+        """All tree geometry, both faces, depth only, into the bound framebuffer and viewport."""
+        self.ctx.disable(self.ctx.CULL_FACE)
+        self.ctx.enable(self.ctx.DEPTH_TEST)
+        self.ctx.depth_func = "<="
+        prog = self._program("shadow")
+        prog["u_view_projection"].write(_mat(view_projection))
+        for draw in self._draws:
+            self._vao(("shadow", False), draw, None).render(instances=draw.instance_count)
+
+    def _shadow_pass(self, sun: np.ndarray) -> None:
+        key = tuple(np.round(sun, 12))
+        if self._shadow_key == key:
+            return
+        self._light_vp, self._texel_world, self._depth_range = self._fit_light(sun, self.shadow_size)
+        self._shadow_fbo.use()
+        self.ctx.viewport = (0, 0, self.shadow_size, self.shadow_size)
+        self._shadow_fbo.clear(depth=1.0)
+        self._draw_depth(self._light_vp)
+        self._shadow_key = key
+
+    def _sky_pass(self) -> None:
+        """One depth map per sky direction, tiled in one texture; drawn once (the sky does not move)."""
+        if self._sky_done:
+            return
+        self._sky_fbo.use()
+        self.ctx.viewport = (0, 0, self._sky_tex.width, self._sky_tex.height)
+        self._sky_fbo.clear(depth=1.0)
+        texel, depth = 0.0, 1.0
+        for k, d in enumerate(self._sky_dirs):
+            vp, texel_k, depth_k = self._fit_light(d, SKY_TILE)
+            self._sky_vps[k] = vp
+            texel, depth = max(texel, texel_k), max(depth, depth_k)
+            col, row = k % self._sky_tiles, k // self._sky_tiles
+            self.ctx.viewport = (col * SKY_TILE, row * SKY_TILE, SKY_TILE, SKY_TILE)
+            self._draw_depth(vp)
+        self._sky_texel_world = texel
+        self._sky_depth_bias = 2.0 * texel / depth
+        self._sky_done = True
+        if self.sky_samples:
+            self._sky_cache_pass()
+
+    def _sky_uniforms(self) -> dict[str, object]:
+        return {
+            "u_sky_map": 1,
+            "u_sky_count": len(self._sky_dirs),
+            "u_sky_tiles": self._sky_tiles,
+            "u_sky_texel_world": self._sky_texel_world,
+            "u_sky_texel": 1.0 / SKY_TILE,
+            "u_sky_depth_bias": self._sky_depth_bias,
+            "u_up": tuple(np.asarray(self.scene.up, dtype=np.float64)),
+        }
+
+    def _sky_uniform_arrays(self) -> dict[str, bytes]:
+        return {
+            "u_sky_view_projection": b"".join(_mat(m) for m in self._sky_vps),
+            "u_sky_dir": np.ascontiguousarray(_padded(self._sky_dirs, MAX_SKY_SAMPLES), dtype=np.float32).tobytes(),
+        }
+
+    def _sky_cache_pass(self) -> None:
+        """Sky visibility of every vertex of every instance, by transform feedback, into one RG texture per draw."""
+        prog = self._program("skycache")
+        for name, value in self._sky_uniform_arrays().items():
+            if name in prog:
+                prog[name].write(value)
+        for name, value in self._sky_uniforms().items():
+            if name in prog:
+                prog[name].value = value
+        self._sky_tex.use(location=1)
+        for draw in self._draws:
+            vertices = 3 * draw.triangle_count
+            count = vertices * draw.instance_count
+            width = min(count, SKY_CACHE_WIDTH)
+            height = -(-count // width)
+            if height > self.max_texture:
+                raise UsageError(
+                    f"{count:,} vertex instances need a {width}x{height} sky-visibility texture, more than this GL allows "
+                    f"({self.max_texture}); use --sky-samples 0."
+                )
+            out = self.ctx.buffer(reserve=width * height * 8)
+            vao = self.ctx.vertex_array(
+                prog,
+                [(draw.positions, "3f", "in_position"), (draw.normals, "3f", "in_normal"), (draw.instances, *INSTANCE_LAYOUT)],
+                skip_errors=True,
+            )
+            vao.transform(out, mode=self.ctx.POINTS, vertices=vertices, instances=draw.instance_count)
+            tex = self.ctx.texture((width, height), 2, dtype="f4")
+            tex.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
+            tex.write(out)
+            vao.release()
+            out.release()
+            draw.sky_cache, draw.sky_cache_width = tex, width
+
+    # -- main pass ------------------------------------------------------------------
+    def render(
+        self,
+        camera: Camera,
+        lighting: Lighting,
+        optics: SurfaceOptics | None = None,
+        *,
+        method: str | None = None,
+        ground: Ground | None = None,
+    ) -> Frame:
+        """Draw one frame. ``method`` adds that method's indirect term to the leaves (None: direct only)."""
+        optics = optics or SurfaceOptics()
+        if method is not None and method not in self.scene.methods:
+            raise ValueError(f"no indirect term {method!r} in the scene (have: {sorted(self.scene.methods)})")
+        t0 = time.perf_counter()
+        up = np.asarray(self.scene.up, dtype=np.float64)
+        sun = np.asarray(lighting.sun_direction, dtype=np.float64)
+        sun = sun / np.linalg.norm(sun)
+        sun_irr = np.asarray(lighting.sun_irradiance, dtype=np.float64)
+        sky = np.asarray(lighting.sky_radiance, dtype=np.float64)
+        ground_radiance = np.zeros(3)
+        if ground is not None:
+            if sun @ up <= 0.0:
+                sun_irr = np.zeros(3)  # the ground hides a sun below the horizon
+            # ground bounce seen by the tree: Lambertian ground lit by the unshadowed sun and sky
+            ground_radiance = np.asarray(optics.ground_reflectance) / math.pi * (sun_irr * max(sun @ up, 0.0) + math.pi * sky)
+        self._shadow_pass(sun)
+        self._sky_pass()
+
+        k = self.supersample
+        width, height = camera.width * k, camera.height * k
+        if max(width, height) > self.max_size:
+            raise UsageError(
+                f"{camera.width}x{camera.height} pixels with {self.samples} samples each needs a {width}x{height} framebuffer; "
+                f"this GL allows {self.max_size} per side. Use fewer --samples or a smaller --size."
+            )
+        fbo = self._render_targets(width, height)
+        fbo.use()
+        self.ctx.viewport = (0, 0, width, height)
+        fbo.clear(red=0.0, green=0.0, blue=0.0, alpha=0.0, depth=1.0)  # clears the tree mask too
+        self.ctx.disable(self.ctx.CULL_FACE)
+        self.ctx.enable(self.ctx.DEPTH_TEST)
+        self.ctx.depth_func = "<="
+        self._shadow_tex.use(location=0)
+        self._sky_tex.use(location=1)
+        common = {
+            "u_view_projection": _mat(camera.view_projection()),
+            "u_light_view_projection": _mat(self._light_vp),
+            **self._sky_uniform_arrays(),
+        }
+        scalars = {
+            "u_sun_dir": tuple(sun),
+            "u_sun_irradiance": tuple(sun_irr),
+            "u_sky_radiance": tuple(sky),
+            "u_ground_radiance": tuple(ground_radiance),
+            "u_up": tuple(up),
+            "u_camera_pos": tuple(camera.position),
+            "u_view_dir": tuple(camera.forward),
+            "u_orthographic": camera.orthographic,
+            "u_shadow_map": 0,
+            "u_shadow_texel_world": self._texel_world,
+            "u_shadow_texel": 1.0 / self.shadow_size,
+            # two texels' worth of depth slope, in [0, 1] depth units
+            "u_shadow_depth_bias": 2.0 * self._texel_world / max(self._depth_range, 1e-12),
+            **self._sky_uniforms(),
+            "u_sky_cache": 2,
+        }
+        leaf = optics.leaf
+        material = {
+            "leaf": {
+                "u_rho_rf": leaf.reflectance_front,
+                "u_rho_rb": leaf.reflectance_back,
+                "u_rho_tf": leaf.transmittance_front,
+                "u_rho_tb": leaf.transmittance_back,
+                "u_specular": leaf.specular,
+                "u_roughness": leaf.roughness,
+            },
+            "wood": {"u_albedo": optics.wood_reflectance},
+            "ground": {"u_albedo": optics.ground_reflectance},
+        }
+
+        def setup(prog, kind: str) -> None:
+            for name, value in common.items():
+                if name in prog:
+                    prog[name].write(value)
+            for name, value in {**scalars, **material[kind]}.items():
+                if name in prog:
+                    prog[name].value = value
+
+        for draw in self._draws:
+            kind = "leaf" if draw.leaf else "wood"
+            name = method if (method is not None and method in draw.indirect) else None
+            key = (kind, name is not None)
+            prog = self._program(*key)
+            setup(prog, kind)
+            if draw.sky_cache is not None:
+                draw.sky_cache.use(location=2)
+                prog["u_sky_cache_width"].value = draw.sky_cache_width
+                prog["u_vertex_count"].value = 3 * draw.triangle_count
+            self._vao(key, draw, name).render(instances=draw.instance_count)
+        if ground is not None:
+            vao = self._ground_vao(ground)
+            setup(vao.program, "ground")
+            vao.render(instances=1)
+
+        rgba = np.frombuffer(fbo.read(components=4, dtype="f4", attachment=0), np.float32).reshape(height, width, 4)[::-1]
+        tree = np.frombuffer(fbo.read(components=1, dtype="f4", attachment=1), np.float32).reshape(height, width)[::-1]
+        rgba, tree = _box_filter(rgba, k), _box_filter(tree, k)
+        err = self.ctx.error
+        if err != "GL_NO_ERROR":
+            raise RuntimeError(f"OpenGL error while rendering: {err}")
+        return Frame(
+            radiance=np.ascontiguousarray(rgba[:, :, :3]),
+            alpha=np.ascontiguousarray(rgba[:, :, 3]),
+            tree=np.ascontiguousarray(tree),
+            sky=tuple(float(c) for c in sky),
+            seconds=time.perf_counter() - t0,
+        )
+
+    def release(self) -> None:
+        for vao in self._vaos.values():
+            vao.release()
+        for prog in self._programs.values():
+            prog.release()
+        for buf in self._buffers:
+            buf.release()
+        for obj in self._targets or ():
+            obj.release()
+        self._shadow_fbo.release()
+        self._shadow_tex.release()
+        self._sky_fbo.release()
+        self._sky_tex.release()
+        for draw in self._draws:
+            if draw.sky_cache is not None:
+                draw.sky_cache.release()
+        self.ctx.release()
+        self._vaos, self._programs, self._buffers, self._targets = {}, {}, [], None
+
+    def __enter__(self) -> Renderer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()

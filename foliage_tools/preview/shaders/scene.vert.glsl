@@ -1,0 +1,50 @@
+// Vertex stage shared by every pass: leaves, wood and the ground plane, and (with
+// DEPTH_ONLY) the shadow and sky depth passes. Preceded by sky.glsl.
+// Geometry is in prototype space; each instance brings its world-from-prototype matrix
+// (column-vector convention, foliage_tools/scene/model.py) and the matrix for normals.
+
+uniform vec3 u_up;
+
+in vec3 in_position;
+in vec3 in_normal;        // the triangle's right-handed (front) unit normal, the same at its 3 corners
+in mat4 in_model;         // per instance
+in mat3 in_normal_matrix; // per instance: inverse transpose of the model's 3x3 part
+
+#ifdef HAS_INDIRECT
+in vec3 in_indirect;  // E_scattered at this corner: scattered irradiance, both faces summed
+out vec3 v_indirect;
+#endif
+
+uniform mat4 u_view_projection;
+
+#ifdef SKY_CACHED
+uniform sampler2D u_sky_cache;  // RG: sky visibility of the front and back face
+uniform int u_sky_cache_width;
+uniform int u_vertex_count;     // vertices per instance
+#endif
+
+#ifndef DEPTH_ONLY
+out vec3 v_world;
+flat out vec3 v_normal;   // front normal in world space (not normalised)
+out vec2 v_sky;           // open fraction of the sky seen by the front (x) and back (y) face
+#endif
+
+void main() {
+    vec4 world = in_model * vec4(in_position, 1.0);
+#ifndef DEPTH_ONLY
+    v_world = world.xyz;
+    v_normal = in_normal_matrix * in_normal;
+#ifdef SKY_CACHED
+    // computed once per scene by sky_cache.vert.glsl: one texel per (instance, vertex)
+    int index = gl_InstanceID * u_vertex_count + gl_VertexID;
+    v_sky = texelFetch(u_sky_cache, ivec2(index % u_sky_cache_width, index / u_sky_cache_width), 0).xy;
+#else
+    vec3 n = length(v_normal) > 0.0 ? normalize(v_normal) : u_up;  // degenerate triangles draw nothing
+    v_sky = u_sky_count > 0 ? vec2(sky_visibility(world.xyz, n), sky_visibility(world.xyz, -n)) : vec2(1.0);
+#endif
+#endif
+#ifdef HAS_INDIRECT
+    v_indirect = in_indirect;
+#endif
+    gl_Position = u_view_projection * world;
+}
