@@ -28,8 +28,15 @@ test: setup
 test-slow: setup
 	$(PY) -m pytest -m slow -q
 
+# Speed studies (not tests): each script prints its own table. Run one with
+# `make bench BENCH=density` (density, lb, smax, reference, preview, spp_tables).
+BENCH ?= density lb smax reference preview spp_tables
 bench: setup
-	$(PY) benchmarks/bench_density.py
+	@for b in $(BENCH); do \
+	  if [ -f benchmarks/bench_$$b.py ]; then echo "== benchmarks/bench_$$b.py"; $(PY) benchmarks/bench_$$b.py || exit 1; fi; \
+	done
+	@echo "== speed vs error on the example (foliage bench)"
+	$(FOLIAGE) bench $(EXAMPLE) --paths 8000000
 
 clean:
 	rm -rf out .pytest_cache
