@@ -9,7 +9,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from foliage_tools.cli import console
-from foliage_tools.cli.common import OUT, SCENE, bake_options, common_options, leaf_optics_from_flags, run, setup_logging
+from foliage_tools.cli.common import OUT, SCENE, bake_options, common_options, execute, leaf_optics_from_flags, run, setup_logging
 
 
 @click.command()
@@ -44,13 +44,8 @@ def smax(scene: Path, out: Path, path_: str, sun: str | None, leaf_optics: str |
             sun=parse_sun(sun) if sun is not None else None,
             path=path_,
         )
-        with console.RichProgress(enabled=not (quiet or as_json)) as progress:
-            report = run_smax(scene, out, params, progress=progress)
-        if as_json:
-            console.print_json(report.as_json())
-            return 0
-        console.warn(report.warnings, quiet)
-        if not quiet:
+
+        def render(report) -> None:
             s = report.stats
             table = Table(title=f"s_max in {report.seconds:.2f} s, sun az {s['sun']['azimuth']:.0f}° el {s['sun']['elevation']:.0f}° ({escape(s['sun']['source'])})")
             for col in ("prototype", "leaves", "path", "tau", "mean s_max", "mean E_direct (G)", "mean E_scattered (G)"):
@@ -59,9 +54,8 @@ def smax(scene: Path, out: Path, path_: str, sun: str | None, leaf_optics: str |
                 table.add_row(escape(p["path"]), str(p["leaves"]), p["path_used"], f"{p['tau']:.4g}", f"{p['smax_mean']:.4g}",
                               f"{p['e_direct_mean'][1]:.4g}", f"{p['e_scattered_mean'][1]:.4g}")
             console.stdout.print(table)
-            for o in report.outputs:
-                console.stdout.print(f"wrote {o}", highlight=False)
-        return 0
+
+        return execute(lambda progress: run_smax(scene, out, params, progress=progress), as_json=as_json, quiet=quiet, render=render)
 
     run(body)
 
@@ -99,13 +93,8 @@ def reference(scene: Path, out: Path, paths: int, seed: int, workers: int | None
             sun=parse_sun(sun) if sun is not None else None,
             paths=paths, seed=seed, workers=workers,
         )
-        with console.RichProgress(enabled=not (quiet or as_json)) as progress:
-            report = run_reference(scene, out, params, progress=progress)
-        if as_json:
-            console.print_json(report.as_json())
-            return 0
-        console.warn(report.warnings, quiet)
-        if not quiet:
+
+        def render(report) -> None:
             s = report.stats
             console.stdout.print(
                 f"{s['paths']:,} sun + {s['sky_paths']:,} sky paths on {s['workers']} worker(s) in {report.seconds:.2f} s; "
@@ -113,9 +102,8 @@ def reference(scene: Path, out: Path, paths: int, seed: int, workers: int | None
             console.stdout.print(
                 f"mean E_direct (RGB) {', '.join(f'{v:.4g}' for v in s['e_direct_mean'])}; "
                 f"mean E_scattered {', '.join(f'{v:.4g}' for v in s['e_scattered_mean'])}", highlight=False, soft_wrap=True)
-            for o in report.outputs:
-                console.stdout.print(f"wrote {o}", highlight=False)
-        return 0
+
+        return execute(lambda progress: run_reference(scene, out, params, progress=progress), as_json=as_json, quiet=quiet, render=render)
 
     run(body)
 
@@ -153,17 +141,15 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed
             methods=tuple(n.strip() for n in methods_.split(",") if n.strip()) if methods_ else None,
             paths=paths, seed=seed,
         )
-        with console.RichProgress(enabled=not (quiet or as_json)) as progress:
+        def stage(progress):
             report = run_bench(scene, params, progress=progress)
-        if plot is not None:
-            from foliage_tools.bench.plot import write_plot
+            if plot is not None:
+                from foliage_tools.bench.plot import write_plot
 
-            report.outputs.append(str(write_plot(plot, report.stats, f"{scene.name}: {report.stats['leaves']} leaves")))
-        if as_json:
-            console.print_json(report.as_json())
-            return 0
-        console.warn(report.warnings, quiet)
-        if not quiet:
+                report.outputs.append(str(write_plot(plot, report.stats, f"{scene.name}: {report.stats['leaves']} leaves")))
+            return report
+
+        def render(report) -> None:
             s = report.stats
             ref = s["reference"]
             table = Table(title=f"{escape(str(scene))}: {s['leaves']} leaves, sun az {s['sun']['azimuth']:.0f}° el {s['sun']['elevation']:.0f}°")
@@ -177,9 +163,8 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed
                 cells = ["n/a" if m[k] is None else f"{m[k]:.3f}" for k in ("rel_rms_scattered", "rel_rms_total", "binned_rms")]
                 table.add_row(escape(m["name"]), f"{m['seconds']:.3f}", *cells)
             console.stdout.print(table)
-            for o in report.outputs:
-                console.stdout.print(f"wrote {o}", highlight=False)
-        return 0
+
+        return execute(stage, as_json=as_json, quiet=quiet, render=render)
 
     run(body)
 
@@ -224,13 +209,8 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, bases=bases, tolerance=tolerance, solver=solver, absorption_scale=absorption_scale,
         )
-        with console.RichProgress(enabled=not (quiet or as_json)) as progress:
-            report = run_lb(scene, out, params, progress=progress)
-        if as_json:
-            console.print_json(report.as_json())
-            return 0
-        console.warn(report.warnings, quiet)
-        if not quiet:
+
+        def render(report) -> None:
             table = Table(title=f"lattice-Boltzmann ({bases}) in {report.seconds:.2f} s")
             for col in ("prototype", "grid", "solver", "iterations", "residual", "MLUPS", "mean E_scattered (G)"):
                 table.add_column(col, justify="left" if col == "prototype" else "right")
@@ -238,9 +218,8 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
                 table.add_row(escape(p["path"]), "×".join(map(str, p["resolution"])), p["solver"], str(p["iterations"]),
                               f"{p['residual']:.1e}", f"{p['mlups']:.1f}", f"{p['e_scattered_mean'][1]:.4g}")
             console.stdout.print(table)
-            for o in report.outputs:
-                console.stdout.print(f"wrote {o}", highlight=False)
-        return 0
+
+        return execute(lambda progress: run_lb(scene, out, params, progress=progress), as_json=as_json, quiet=quiet, render=render)
 
     run(body)
 
@@ -274,15 +253,10 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
         )
-        with console.RichProgress(enabled=not (quiet or as_json)) as progress:
-            report = run_bake(scene, outdir, params, progress=progress)
-        if as_json:
-            console.print_json(report.as_json())
-            return 0
-        console.warn(report.warnings, quiet)
-        if not quiet:
+
+        def render(report) -> None:
             for name, st in report.stats["stages"].items():
-                console.stdout.print(f"{name:>8}: {st['seconds']:.2f} s -> {', '.join(st['outputs'])}", highlight=False, soft_wrap=True)
+                console.stdout.print(f"{name:>8}: {st['seconds']:.2f} s", highlight=False)
             b = report.stats["bench"]
             if b:
                 ref = b["reference"]
@@ -291,6 +265,8 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                     if m["available"] and m["rel_rms_total"] is not None:
                         console.stdout.print(f"  {m['name']:>8}: {m['seconds']:.3f} s, rel. RMS E_scattered {m['rel_rms_scattered']:.3f}, total {m['rel_rms_total']:.3f}", highlight=False)
             console.stdout.print(f"result: {report.stats['result']}", highlight=False)
-        return 0
+
+        return execute(lambda progress: run_bake(scene, outdir, params, progress=progress), as_json=as_json, quiet=quiet, render=render)
 
     run(body)
+

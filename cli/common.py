@@ -126,3 +126,19 @@ def leaf_optics_from_flags(leaf_optics: str | None, wood_reflectance: float | No
         return parse_leaf_optics(leaf_optics, wood_reflectance=wood_reflectance)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+
+
+def execute(stage: Callable, *, as_json: bool, quiet: bool, render: Callable | None = None) -> int:
+    """Run ``stage(progress) -> Report`` with a progress bar, then print its JSON, or warnings, ``render(report)`` and outputs."""
+    with console.RichProgress(enabled=not (quiet or as_json)) as progress:
+        report = stage(progress)
+    if as_json:
+        console.print_json(report.as_json())
+        return 0
+    console.warn(report.warnings, quiet)
+    if not quiet:
+        if render is not None:
+            render(report)
+        for o in report.outputs:
+            console.stdout.print(f"wrote {o}", highlight=False, soft_wrap=True)
+    return 0

@@ -16,7 +16,7 @@ from rich.table import Table
 
 from foliage_tools import __version__
 from foliage_tools.cli import console
-from foliage_tools.cli.common import OUT, SCENE, common_options, run, setup_logging
+from foliage_tools.cli.common import OUT, SCENE, common_options, execute, run, setup_logging
 from foliage_tools.errors import EXIT_FINDINGS
 
 
@@ -157,13 +157,8 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
     def body() -> int:
         setup_logging(verbose, quiet)
         params = DensityParams(voxel_size=voxel_size, resolution=resolution, method=method)
-        with console.RichProgress(enabled=not (quiet or as_json)) as progress:
-            report = run_density(scene, out, params, progress=progress)
-        if as_json:
-            console.print_json(report.as_json())
-            return 0
-        console.warn(report.warnings, quiet)
-        if not quiet:
+
+        def render(report) -> None:
             table = Table(title=f"density ({method}) in {report.seconds:.2f} s")
             for col in ("prototype", "leaves", "grid", "voxel size", "active voxels", "area rel. error", "seconds"):
                 table.add_column(col, justify="left" if col == "prototype" else "right")
@@ -172,9 +167,8 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
                 table.add_row(p["path"], str(p["leaves"]), "×".join(map(str, p["shape"])), f"{p['voxel_size']:.4g}",
                               str(p["active_voxels"]), err, f"{p['seconds']:.2f}")
             console.stdout.print(table)
-            for o in report.outputs:
-                console.stdout.print(f"wrote {o}", highlight=False)
-        return 0
+
+        return execute(lambda progress: run_density(scene, out, params, progress=progress), as_json=as_json, quiet=quiet, render=render)
 
     run(body)
 

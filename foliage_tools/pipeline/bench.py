@@ -12,13 +12,11 @@ from foliage_tools.bench.metrics import binned_rms, rel_rms
 from foliage_tools.bench.registry import BenchContext, methods
 from foliage_tools.errors import UsageError
 from foliage_tools.geometry.rays import RayScene, count_crossings
-from foliage_tools.geometry.sun import choose_sun
 from foliage_tools.lighting.optics import LeafOptics
-from foliage_tools.pipeline.density import require_leaves
 from foliage_tools.pipeline.reference import ReferenceParams, bake_reference
 from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.pipeline.world import World
-from foliage_tools.scene.read import read_scene
 
 
 @dataclass(frozen=True)
@@ -59,11 +57,7 @@ def depth_thickness(world: World, sun_dir: np.ndarray) -> tuple[np.ndarray, np.n
 
 def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = None) -> Report:
     progress = progress or Silent()
-    report = Report(command="bench", inputs=[str(path)])
-    scene, warnings = read_scene(path)
-    report.warnings.extend(warnings)
-    require_leaves(scene, path)
-    sun = choose_sun(scene.lights, scene.up_axis, params.sun, report.warnings)
+    report, scene, sun = begin_bake("bench", path, None, params.sun, progress)
     all_methods = methods()
     names = [m.name for m in all_methods]
     if params.methods:

@@ -22,19 +22,19 @@ import numpy as np
 
 from foliage_tools import __version__
 from foliage_tools.errors import UsageError
-from foliage_tools.geometry.sun import Sun, choose_sun, to_prototype_space
+from foliage_tools.geometry.sun import Sun
 from foliage_tools.geometry.voxelize import GridSpec
 from foliage_tools.lighting import lb
 from foliage_tools.lighting.collision import brown, density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
-from foliage_tools.pipeline.density import compute_density, require_leaves, vdb_path, volume_path
+from foliage_tools.pipeline.density import compute_density, vdb_path, volume_path
 from foliage_tools.pipeline.leafdata import leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
 from foliage_tools.scene.model import Prototype, Scene
-from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.vdb import Grid
-from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, check_output_path, stage_metadata, write_layer
+from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, stage_metadata, write_layer
 
 BASES = ("sun", "all")
 #: Nodes whose wood fraction exceeds this are "brown" (g = −1, geist2008 sec. 3).
@@ -143,10 +143,7 @@ def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], p
     progress.step(f"lattice-Boltzmann ({params.bases}) for {len(baked)} prototype(s)", total=len(baked))
     out = []
     for i, proto in baked:
-        insts = scene.instances_of(i)
-        sun_local = to_prototype_space(sun.direction, insts[0].transform) if insts else sun.direction
-        if len({tuple(np.round(to_prototype_space(sun.direction, t.transform), 6)) for t in insts}) > 1:
-            warnings.append(f"prototype <{proto.path}> has instances at several orientations; lbIndirect uses the sun as seen by <{insts[0].path}>.")
+        sun_local = sun_in_prototype(scene, i, sun, warnings)
         out.append(bake_prototype(proto, i, sun_local, params))
         progress.advance()
     return out
@@ -165,13 +162,7 @@ def _vertex_indirect(proto: Prototype, bake: LBPrototypeBake) -> list[PrimvarEdi
 
 def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | None = None) -> Report:
     progress = progress or Silent()
-    report = Report(command="lb", inputs=[str(path)])
-    check_output_path(path, out)
-    progress.step(f"reading {path}")
-    scene, warnings = read_scene(path)
-    report.warnings.extend(warnings)
-    require_leaves(scene, path)
-    sun = choose_sun(scene.lights, scene.up_axis, params.sun, report.warnings)
+    report, scene, sun = begin_bake("lb", path, out, params.sun, progress)
     edits = LayerEdits()
     protos = []
     for bake in bake_lb(scene, sun, params, report.warnings, progress):

@@ -13,17 +13,16 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools.errors import UsageError
-from foliage_tools.geometry.sun import Sun, choose_sun
+from foliage_tools.geometry.sun import Sun
 from foliage_tools.lighting import reference
 from foliage_tools.lighting.optics import LeafOptics
-from foliage_tools.pipeline.density import require_leaves
 from foliage_tools.pipeline.leafdata import leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.pipeline.smax import sky_radiance
 from foliage_tools.pipeline.world import World, assemble, prototype_means
 from foliage_tools.scene.model import Scene
-from foliage_tools.scene.read import read_scene
-from foliage_tools.scene.write import LayerEdits, check_output_path, stage_metadata, write_layer
+from foliage_tools.scene.write import LayerEdits, stage_metadata, write_layer
 
 
 @dataclass(frozen=True)
@@ -89,13 +88,7 @@ def bake_reference(scene: Scene, sun: Sun, params: ReferenceParams, progress: Pr
 
 def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: Progress | None = None) -> Report:
     progress = progress or Silent()
-    report = Report(command="reference", inputs=[str(path)])
-    check_output_path(path, out)
-    progress.step(f"reading {path}")
-    scene, warnings = read_scene(path)
-    report.warnings.extend(warnings)
-    require_leaves(scene, path)
-    sun = choose_sun(scene.lights, scene.up_axis, params.sun, report.warnings)
+    report, scene, sun = begin_bake("reference", path, out, params.sun, progress)
     bake = bake_reference(scene, sun, params, progress)
     res = bake.result
     counts = [p.leaves.count for p in scene.prototypes]

@@ -13,16 +13,15 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools import __version__
-from foliage_tools.geometry.sun import Sun, choose_sun, to_prototype_space
+from foliage_tools.geometry.sun import Sun, to_prototype_space
 from foliage_tools.lighting import boulanger, envelope
 from foliage_tools.lighting.optics import LeafOptics
-from foliage_tools.pipeline.density import require_leaves
 from foliage_tools.pipeline.leafdata import leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
 from foliage_tools.scene.model import Scene
-from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.schemas import ENVELOPE_API
-from foliage_tools.scene.write import AttributeEdit, LayerEdits, check_output_path, stage_metadata, write_layer
+from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
 
 PATHS = ("auto", "reference", "fast")
 
@@ -68,17 +67,9 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
     progress.step(f"s_max for {len(baked)} prototype(s)", total=len(baked))
     out = []
     for i, proto in baked:
+        sun_local = sun_in_prototype(scene, i, sun, warnings)
         insts = scene.instances_of(i)
-        # the sun in the prototype's own frame (DESIGN.md section 4); per-leaf primvars are per prototype,
-        # so instances rotated differently from the first share its lighting
-        sun_local = to_prototype_space(sun.direction, insts[0].transform) if insts else sun.direction
         up_local = to_prototype_space(scene.up, insts[0].transform) if insts else scene.up
-        rotations = {tuple(np.round(to_prototype_space(sun.direction, inst.transform), 6)) for inst in insts}
-        if len(rotations) > 1:
-            warnings.append(
-                f"prototype <{proto.path}> has {len(insts)} instances at {len(rotations)} orientations; its per-leaf "
-                f"lighting uses the sun as seen by <{insts[0].path}>."
-            )
         env = envelope.solve(
             proto.leaves.centers, proto.leaves.normals, proto.leaves.areas, up=up_local, params=envelope.EnvelopeParams(path=params.path)
         )
@@ -101,13 +92,7 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
 
 def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | None = None) -> Report:
     progress = progress or Silent()
-    report = Report(command="smax", inputs=[str(path)])
-    check_output_path(path, out)
-    progress.step(f"reading {path}")
-    scene, warnings = read_scene(path)
-    report.warnings.extend(warnings)
-    require_leaves(scene, path)
-    sun = choose_sun(scene.lights, scene.up_axis, params.sun, report.warnings)
+    report, scene, sun = begin_bake("smax", path, out, params.sun, progress)
     edits = LayerEdits()
     protos = []
     for bake in bake_smax(scene, sun, params, report.warnings, progress):

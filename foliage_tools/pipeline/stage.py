@@ -1,0 +1,44 @@
+"""What every bake stage does first: check the output, read the scene, choose the sun."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools.geometry.sun import Sun, choose_sun, to_prototype_space
+from foliage_tools.pipeline.density import require_leaves
+from foliage_tools.pipeline.report import Progress, Report
+from foliage_tools.scene.model import Scene
+from foliage_tools.scene.read import read_scene
+from foliage_tools.scene.write import check_output_path
+
+
+def begin_bake(command: str, path: Path, out: Path | None, sun_flag, progress: Progress) -> tuple[Report, Scene, Sun]:
+    """A report, the scene (with leaves) and the sun; refuses a bad output before any work."""
+    report = Report(command=command, inputs=[str(path)])
+    if out is not None:
+        check_output_path(path, out)
+    progress.step(f"reading {path}")
+    scene, warnings = read_scene(path)
+    report.warnings.extend(warnings)
+    require_leaves(scene, path)
+    sun = choose_sun(scene.lights, scene.up_axis, sun_flag, report.warnings)
+    return report, scene, sun
+
+
+def sun_in_prototype(scene: Scene, index: int, sun: Sun, warnings: list[str]) -> np.ndarray:
+    """The sun direction in a prototype's own frame (DESIGN.md section 4), as seen by its first instance.
+
+    Per-leaf results are stored per prototype, so instances rotated differently
+    from the first share its lighting: that is reported as a warning.
+    """
+    insts = scene.instances_of(index)
+    if not insts:
+        return sun.direction
+    if len({tuple(np.round(to_prototype_space(sun.direction, i.transform), 6)) for i in insts}) > 1:
+        warnings.append(
+            f"prototype <{scene.prototypes[index].path}> has {len(insts)} instances at several orientations; its per-leaf "
+            f"lighting uses the sun as seen by <{insts[0].path}>."
+        )
+    return to_prototype_space(sun.direction, insts[0].transform)
