@@ -610,6 +610,17 @@ def _check_grid(grid) -> GridSpec:
     return grid
 
 
+def _run(kernel, triangles, grid) -> np.ndarray:
+    """Check the inputs and run one of the voxel kernels on all threads (zeros for no triangles)."""
+    tris = _check_triangles(triangles)
+    grid = _check_grid(grid)
+    nx, ny, nz = grid.shape
+    if tris.shape[0] == 0:
+        return np.zeros(grid.shape, dtype=np.float64)
+    origin = np.asarray(grid.origin, dtype=np.float64)
+    return kernel(tris, origin, grid.voxel_size, nx, ny, nz, numba.get_num_threads())
+
+
 def area_per_voxel(triangles: np.ndarray, grid: GridSpec) -> np.ndarray:
     """Exact area of the triangles inside each voxel.
 
@@ -643,13 +654,7 @@ def area_per_voxel(triangles: np.ndarray, grid: GridSpec) -> np.ndarray:
     TypeError
         If ``grid`` is not a :class:`GridSpec`.
     """
-    tris = _check_triangles(triangles)
-    grid = _check_grid(grid)
-    nx, ny, nz = grid.shape
-    if tris.shape[0] == 0:
-        return np.zeros(grid.shape, dtype=np.float64)
-    origin = np.asarray(grid.origin, dtype=np.float64)
-    return _area_kernel(tris, origin, grid.voxel_size, nx, ny, nz, numba.get_num_threads())
+    return _run(_area_kernel, triangles, grid)
 
 
 def subgrid_coverage(triangles: np.ndarray, grid: GridSpec) -> np.ndarray:
@@ -686,13 +691,7 @@ def subgrid_coverage(triangles: np.ndarray, grid: GridSpec) -> np.ndarray:
     TypeError
         If ``grid`` is not a :class:`GridSpec`.
     """
-    tris = _check_triangles(triangles)
-    grid = _check_grid(grid)
-    nx, ny, nz = grid.shape
-    if tris.shape[0] == 0:
-        return np.zeros(grid.shape, dtype=np.float64)
-    origin = np.asarray(grid.origin, dtype=np.float64)
-    return _subgrid_kernel(tris, origin, grid.voxel_size, nx, ny, nz, numba.get_num_threads())
+    return _run(_subgrid_kernel, triangles, grid)
 
 
 def mark_wood_fraction(leaf_area: np.ndarray, wood_area: np.ndarray) -> np.ndarray:
