@@ -1,0 +1,508 @@
+"""G-factor, SPPG and single-scattering (SS) irradiance per leaf (shinya2013 sec. 4, 5.2-5.4, app. A.2).
+
+Inputs are optical depths (:class:`~foliage_tools.lighting.depth.DepthSamples`)
+from the density grid (:mod:`~foliage_tools.lighting.depth`) or from leaf
+intersection counts, optionally plus contributions of neighbouring instances
+(shinya2013 eq. (31)); outputs are the per-leaf quantities of DESIGN.md sec. 3.
+
+Geometry and normalisation
+--------------------------
+The local plane-parallel slab has its lit face normal to the stage's ``up``
+axis (canopies are layered horizontally, and this is the geometry in which a
+horizontally infinite uniform canopy is exactly plane-parallel, G = 1). A light
+from direction ``l`` (unit, toward the light, l · up = μ0 > 0) has slant depth
+``u`` = optical depth toward ``l`` and slant thickness ``U`` = optical chord
+through the point along ``l`` (:mod:`~foliage_tools.lighting.spp`).
+
+* Sun: irradiance 1 on a plane perpendicular to it (DESIGN.md sec. 3).
+* Sky: uniform radiance 1/π over the upper hemisphere (horizontal irradiance 1,
+  as :func:`~foliage_tools.lighting.plane_parallel.solve_slab_diffuse`),
+  represented by the upper sample directions as distant lights of weights
+  ``W_j`` (:func:`sky_weights`) with Σ W_j μ_j = 1 (shinya2013 sec. 5.4 step 4).
+
+Per leaf of unit normal n, both faces summed:
+
+* ``direct``  = |n · l_sun| exp(-u_sun) (unscattered sun). Evaluated at the leaf
+  centre: the area average of DESIGN.md is approximated by the centre value.
+* ``scattered`` (SPP) = (a + b)/2 of the SPP field, which is independent of
+  the leaf orientation (:attr:`~foliage_tools.lighting.spp.SPPField.leaf_irradiance`);
+  with ``refine`` the refined radiance (app. A.1) is integrated against |n · s|
+  over the sphere instead.
+* SPPG: ``scattered`` × G (shinya2013 eq. (28) with I0 = the attenuated direct
+  light, which contains no scattered light: I_G = G I_pp + (1 - G) I0 leaves the
+  direct part unchanged and scales the scattered part by G).
+* SS: the paper's single-scattering baseline (sec. 4.2: "reflection/transmission
+  of the direct light, I0, was simply calculated"): a leaf receives only the
+  attenuated direct light, so its ``scattered`` is zero (the light it sends to
+  the eye is then scattered once).
+
+The G-factor (re-derived from shinya2013 eqs. (23)-(27))
+--------------------------------------------------------
+For a point P at slant depth d0 toward the light (vertical optical depth
+t0 = μ0 d0) in a slab of slant thickness w0, consider a sample direction v
+with v_n = v · up. Along the ray P + l v (l: optical path length) the direct
+light in the plane-parallel slab is exp(-(d0 - l v_n / μ0)), so the light
+scattered once toward P from that ray is proportional to
+
+    ∫_0^{L} exp(-l) exp(-(d0 - l v_n/μ0)) dl ∝ ∫_0^{L} exp(-c l) dl,   c = 1 - v_n / μ0,
+
+where L is the optical distance to the slab face the ray meets
+(L = t0 / v_n for v_n > 0, (τ - t0)/|v_n| = μ0 (w0 - d0)/|v_n| for v_n < 0,
+inf for v_n = 0). The real medium ends at optical distance h = the depth of P
+toward v (the boundary B1 of Fig. 4(a)); the part of the plane-parallel single
+scattering actually present is
+
+    F_v = ∫_0^{min(h, L)} e^{-c l} dl / ∫_0^{L} e^{-c l} dl
+        = (1 - e^{-c h}) / (1 - e^{-c L})                         (c > 0)
+        = h / L                                                   (c = 0)
+        = e^{-|c|(L - h)} (1 - e^{-|c| h}) / (1 - e^{-|c| L})     (c < 0)
+
+(only decaying exponentials; continuous through c = 0, i.e. v_n = μ0, the
+coincidence λ = σ of app. A.2), F_v = 1 when h >= L or L = 0, and
+
+    G = 1 - (1/N) Σ_v G_v = (1/N) Σ_v F_v                          (eq. (27))
+
+with G_v = 1 - F_v = δI(P, B1)/δI(P, P) (eq. (26)). The phase function and the
+factor e^{-d0} cancel in the ratio. This differs from the printed app. A.2:
+(A.3) writes G_si as a *product* (1 - E(h; ...))(1 - E(z0; ...)) of terms that
+have units of length when the rates coincide, while eq. (26) defines a ratio of
+two integrals; and the prefactor of δI(P, B1) is the direct light at P,
+exp(-σt z0 / cos θ0), not exp(-σt z0 / cos θ).
+
+Sample directions: a spherical Fibonacci set (González 2010, "Measurement of
+areas on a sphere using Fibonacci and latitude-longitude lattices"), z_i =
+1 - (2i+1)/N about ``up`` with golden-angle azimuths: equal-area, no direction
+exactly horizontal for even N, and symmetric in v_n, so half of them serve as
+sky directions. The paper does not give its 16-22 directions.
+
+Pure numpy + numba; no files, no printing.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from .depth import DepthSamples
+from .optics import LeafOptics
+from .phase import canopy_bilambertian_phase
+from .spp import forward_fraction, refined_parts, spp_field
+
+__all__ = [
+    "DEFAULT_DIRECTIONS",
+    "LeafIrradiance",
+    "SPPGParams",
+    "SPPGResult",
+    "gfactor",
+    "sample_directions",
+    "sky_weights",
+    "solve_sppg",
+]
+
+#: Default number of sample directions (shinya2013 sec. 5.1: "typically 16").
+DEFAULT_DIRECTIONS = 16
+#: Leaves per block in the refined leaf integral (bounds temporary memory).
+_REFINE_BLOCK = 4096
+
+
+def _unit(v, name: str) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.any(a != 0.0):
+        raise ValueError(f"{name} must be a finite non-zero 3-vector, got {v!r}")
+    return a / np.linalg.norm(a)
+
+
+def _frame(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing ``up`` to a right-handed orthonormal frame."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(helper, up)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    return e1, e2
+
+
+def sample_directions(n: int = DEFAULT_DIRECTIONS, *, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Spherical Fibonacci directions about ``up`` (module docstring).
+
+    Parameters
+    ----------
+    n : int
+        Number of directions, even, >= 2 (the sky uses the n/2 upper ones).
+    up : array_like (3,)
+        The stage's up axis.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 3)
+        Unit vectors; ``directions @ up = 1 - (2i + 1)/n``.
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2 or n % 2:
+        raise ValueError(f"the number of sample directions must be an even integer >= 2, got {n!r}")
+    upv = _unit(up, "up")
+    e1, e2 = _frame(upv)
+    i = np.arange(n, dtype=np.float64)
+    z = 1.0 - (2.0 * i + 1.0) / n
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = i * math.pi * (3.0 - math.sqrt(5.0))  # golden angle
+    return (r * np.cos(phi))[:, None] * e1 + (r * np.sin(phi))[:, None] * e2 + z[:, None] * upv
+
+
+def sky_weights(directions, *, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Beam irradiance W_j of each sample direction standing for a uniform sky.
+
+    Equal weights (the Fibonacci directions have equal solid angles) on the
+    directions above the horizon, zero below, scaled so that Σ W_j μ_j = 1: the
+    horizontal irradiance of a uniform sky of radiance 1/π.
+    """
+    d = np.asarray(directions, dtype=np.float64)
+    mu = d @ _unit(up, "up")
+    upper = mu > 0.0
+    if not np.any(upper):
+        raise ValueError("no sample direction is above the horizon; cannot represent the sky")
+    w = np.where(upper, 1.0, 0.0)
+    return w / float(np.sum(w * np.where(upper, mu, 0.0)))
+
+
+# --------------------------------------------------------------------------
+# G-factor
+# --------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _present_fraction(c, h, length):
+    """F of the module docstring: share of the plane-parallel single scattering present."""
+    if h >= length or length == 0.0:
+        return 1.0
+    if length != math.inf and abs(c) * length < 1e-8:
+        # nearly coincident rates: first-order expansion of the ratio (error ~(cL)² <= 1e-16),
+        # also avoids 0/0 when c L underflows
+        return h / length * (1.0 + 0.5 * c * (length - h))
+    if c > 0.0:
+        return math.expm1(-c * h) / math.expm1(-c * length) if length != math.inf else -math.expm1(-c * h)
+    if c == 0.0:
+        return h / length
+    a = -c  # c < 0 only for v_n > μ0, where L = t0 / v_n is finite unless d0 = inf
+    if length == math.inf:
+        return 0.0
+    return math.exp(-a * (length - h)) * math.expm1(-a * h) / math.expm1(-a * length)
+
+
+@njit(cache=True)
+def _gfactor_kernel(h, vn, mu0, d0, w0, out):
+    n_pts, n_dir = h.shape
+    for p in range(n_pts):
+        t0 = mu0 * d0[p]
+        below = mu0 * (w0[p] - d0[p]) if w0[p] != math.inf else math.inf
+        acc = 0.0
+        for q in range(n_dir):
+            v = vn[q]
+            if v > 0.0:
+                length = t0 / v
+            elif v < 0.0:
+                length = below / -v
+            else:
+                length = math.inf
+            acc += _present_fraction(1.0 - v / mu0, h[p, q], length)
+        out[p] = acc / n_dir
+
+
+def gfactor(*, boundary_depth, directions, light_direction, light_depth, light_thickness, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Geometric compensation factor G per point (shinya2013 eqs. (26)-(27), re-derived).
+
+    Parameters
+    ----------
+    boundary_depth : array_like (P, N)
+        Optical depth h from each point to the medium's boundary toward each
+        sample direction (``DepthSamples.sample_depth``).
+    directions : array_like (N, 3)
+        The sample directions (unit vectors).
+    light_direction : array_like (3,)
+        Direction toward the light; must be above the horizon (· up > 0).
+    light_depth, light_thickness : array_like (P,)
+        Slant optical depth and chord thickness of each point along the light.
+    up : array_like (3,)
+        Slab normal (the stage's up axis).
+
+    Returns
+    -------
+    numpy.ndarray (P,)
+        G in [0, 1]; 1 where the medium is plane-parallel around the point.
+    """
+    upv = _unit(up, "up")
+    light = _unit(light_direction, "light_direction")
+    mu0 = float(light @ upv)
+    if mu0 <= 0.0:
+        raise ValueError(f"the light must be above the horizon (cosine to up = {mu0:.3g})")
+    h = np.asarray(boundary_depth, dtype=np.float64)
+    dirs = np.asarray(directions, dtype=np.float64)
+    d0 = np.asarray(light_depth, dtype=np.float64)
+    w0 = np.asarray(light_thickness, dtype=np.float64)
+    if dirs.ndim != 2 or dirs.shape[1] != 3 or h.ndim != 2 or h.shape[1] != dirs.shape[0]:
+        raise ValueError(f"boundary_depth (P, N) and directions (N, 3) disagree: {h.shape}, {dirs.shape}")
+    if d0.shape != (h.shape[0],) or w0.shape != d0.shape:
+        raise ValueError("light_depth and light_thickness must have shape (P,)")
+    for name, arr in (("boundary_depth", h), ("light_depth", d0), ("light_thickness", w0)):
+        if np.any(np.isnan(arr)) or np.any(arr < 0.0):
+            raise ValueError(f"{name} must be >= 0 (inf allowed)")
+    if np.any(d0 > w0):
+        raise ValueError("light_depth must not exceed light_thickness")
+    vn = np.ascontiguousarray(dirs @ upv)
+    out = np.empty(h.shape[0])
+    _gfactor_kernel(np.ascontiguousarray(h), vn, mu0, np.ascontiguousarray(d0), np.ascontiguousarray(w0), out)
+    return out
+
+
+# --------------------------------------------------------------------------
+# per-leaf irradiance
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SPPGParams:
+    """Options of the SPP/SPPG bake (``foliage spp``)."""
+
+    refine: bool = False
+    """Integrate the refined radiance of shinya2013 app. A.1 over each leaf's
+    two faces for the sun's scattered light (``--refine``); the sky always uses
+    the plain SPP field."""
+    sky: bool = True
+    """Compute the uniform-sky terms (shinya2013 sec. 5.4 step 4)."""
+    refine_polar_nodes: int = 8
+    """Gauss-Legendre nodes in the cosine, per hemisphere, of the refined leaf integral."""
+    refine_azimuth_nodes: int = 16
+    """Equally spaced azimuths of the refined leaf integral."""
+
+    def __post_init__(self) -> None:
+        for name in ("refine_polar_nodes", "refine_azimuth_nodes"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 256:
+                raise ValueError(f"SPPGParams.{name} must be an integer in [1, 256], got {v!r}")
+
+
+@dataclass(frozen=True)
+class LeafIrradiance:
+    """Per-leaf irradiance of one method, both leaf faces summed, per RGB channel (L, 3)."""
+
+    direct: np.ndarray
+    """Unscattered sun (sun irradiance 1 perpendicular to its direction)."""
+    scattered: np.ndarray
+    """Sun light scattered at least once."""
+    sky_direct: np.ndarray
+    """Unscattered skylight (uniform sky, horizontal irradiance 1); zero if the sky was not computed."""
+    sky_scattered: np.ndarray
+    """Skylight scattered at least once; zero if the sky was not computed."""
+
+
+@dataclass(frozen=True)
+class SPPGResult:
+    """Result of :func:`solve_sppg`."""
+
+    sppg: LeafIrradiance
+    """SPP with the G-factor (the paper's method)."""
+    spp: LeafIrradiance
+    """Plain SPP (G = 1)."""
+    ss: LeafIrradiance
+    """The paper's single-scattering baseline (scattered = 0)."""
+    gfactor: np.ndarray
+    """(L,) G toward the sun."""
+    directions: np.ndarray
+    """(N, 3) the sample directions used."""
+    mu0: float
+    """Cosine of the sun to the up axis."""
+    refined: bool
+    """Whether the sun's scattered light used the refinement."""
+    seconds: float
+    """Wall time of the call."""
+
+
+def _check_normals(normals, n: int) -> np.ndarray:
+    nl = np.asarray(normals, dtype=np.float64)
+    if nl.shape != (n, 3) or not np.all(np.isfinite(nl)):
+        raise ValueError(f"normals must be finite with shape ({n}, 3), got {nl.shape}")
+    norm = np.linalg.norm(nl, axis=1)
+    if np.any(norm == 0.0):
+        raise ValueError("normals must be non-zero (leaf normals)")
+    return nl / norm[:, None]
+
+
+def _refined_leaf_irradiance(
+    u, big_u, nl, sun, upv, mu0, phases, albedo, t_sun, params: SPPGParams
+) -> np.ndarray:
+    """∫ I_refined(s) |n · s| dΩ per leaf and channel (shinya2013 eq. (32) with a two-sided Lambertian leaf)."""
+    inward = -upv
+    s0 = -sun  # propagation direction of the beam
+    horiz = s0 - (s0 @ inward) * inward
+    if np.linalg.norm(horiz) < 1e-12:
+        ex, ey = _frame(inward)
+    else:
+        ex = horiz / np.linalg.norm(horiz)
+        ey = np.cross(inward, ex)
+    xg, wg = np.polynomial.legendre.leggauss(params.refine_polar_nodes)
+    mu_h = 0.5 * (xg + 1.0)
+    w_h = 0.5 * wg
+    mu = np.concatenate([mu_h, -mu_h])  # cosine to the inward normal
+    w_mu = np.concatenate([w_h, w_h])
+    n_az = params.refine_azimuth_nodes
+    phi = (np.arange(n_az) + 0.5) * (2.0 * math.pi / n_az)
+    w_phi = 2.0 * math.pi / n_az
+    sin_t = np.sqrt(1.0 - mu * mu)
+    dirs = (
+        mu[:, None, None] * inward
+        + (sin_t[:, None] * np.cos(phi)[None, :])[:, :, None] * ex
+        + (sin_t[:, None] * np.sin(phi)[None, :])[:, :, None] * ey
+    )  # (M, A, 3)
+    cos_scat = np.clip(dirs @ s0, -1.0, 1.0)  # (M, A)
+    n_ch = albedo.shape[0]
+    p_scat = np.stack([np.asarray(phases[c](cos_scat), dtype=np.float64) for c in range(n_ch)])  # (C, M, A)
+    t_ray = np.stack([forward_fraction(phases[c], np.abs(mu)) for c in range(n_ch)])  # (C, M)
+    n_leaves = u.shape[0]
+    out = np.empty((n_leaves, n_ch))
+    for start in range(0, n_leaves, _REFINE_BLOCK):
+        sl = slice(start, min(start + _REFINE_BLOCK, n_leaves))
+        cos_n = np.abs(np.einsum("lk,mak->lma", nl[sl], dirs))  # (B, M, A)
+        a_iso = cos_n.sum(axis=2) * w_phi  # (B, M)
+        a_beam = np.einsum("lma,cma->lmc", cos_n, p_scat) * (w_phi / (4.0 * math.pi))  # (B, M, C)
+        parts = refined_parts(
+            u[sl, None, None],
+            big_u[sl, None, None],
+            mu0=mu0,
+            mu=mu[None, :, None],
+            albedo=albedo[None, None, :],
+            forward_fraction_sun=t_sun[None, None, :],
+            forward_fraction_ray=t_ray.T[None, :, :],
+        )  # (B, M, C)
+        out[sl] = np.einsum("m,lmc->lc", w_mu, parts.iso * a_iso[:, :, None] + parts.beam * a_beam)
+    return out
+
+
+def solve_sppg(
+    depths: DepthSamples,
+    *,
+    normals,
+    optics: LeafOptics,
+    sun_direction,
+    directions,
+    up=(0.0, 0.0, 1.0),
+    neighbour_depths: DepthSamples | None = None,
+    params: SPPGParams | None = None,
+) -> SPPGResult:
+    """SPPG, SPP and SS irradiance per leaf for the sun and a uniform sky (shinya2013 sec. 5.4 steps 4-6).
+
+    Parameters
+    ----------
+    depths : DepthSamples
+        Optical depths of the L leaf centres toward the sun and the N sample
+        directions (grid path: :func:`~foliage_tools.lighting.depth.depth_samples`
+        with ``points`` = leaf centres; or from intersection counts).
+    normals : array_like (L, 3)
+        Leaf normals (either orientation; both faces are summed).
+    optics : LeafOptics
+        Leaf reflectance and transmittance per channel. The canopy is taken as
+        spherically distributed bi-Lambertian leaves: albedo r + t and
+        :func:`~foliage_tools.lighting.phase.canopy_bilambertian_phase` per channel.
+    sun_direction : array_like (3,)
+        Direction toward the sun; must be above the horizon.
+    directions : array_like (N, 3)
+        The sample directions of ``depths`` (:func:`sample_directions`).
+    up : array_like (3,)
+        The stage's up axis (slab normal).
+    neighbour_depths : DepthSamples, optional
+        Optical depths through neighbouring instances along the same rays
+        (shinya2013 eq. (31); :func:`~foliage_tools.lighting.depth.instance_depth_samples`),
+        added to ``depths``.
+    params : SPPGParams, optional
+
+    Returns
+    -------
+    SPPGResult
+    """
+    start = time.perf_counter()
+    params = SPPGParams() if params is None else params
+    if not isinstance(depths, DepthSamples):
+        # ValueError, not TypeError: the project reports all bad inputs as ValueError
+        raise ValueError(f"depths must be a DepthSamples, got {type(depths).__name__}")  # noqa: TRY004
+    if not isinstance(optics, LeafOptics):
+        raise ValueError(f"optics must be a LeafOptics, got {type(optics).__name__}")  # noqa: TRY004
+    if neighbour_depths is not None:
+        depths = depths + neighbour_depths
+    upv = _unit(up, "up")
+    sun = _unit(sun_direction, "sun_direction")
+    mu0 = float(sun @ upv)
+    if mu0 <= 0.0:
+        raise ValueError(f"the sun must be above the horizon (elevation > 0), cosine to up = {mu0:.3g}")
+    dirs = np.asarray(directions, dtype=np.float64)
+    if dirs.shape != (depths.n_directions, 3):
+        raise ValueError(f"directions must have shape ({depths.n_directions}, 3) like depths, got {dirs.shape}")
+    norms = np.linalg.norm(dirs, axis=1)
+    if not np.all(np.isfinite(norms)) or np.any(norms == 0.0):
+        raise ValueError("directions must be finite non-zero vectors")
+    dirs = dirs / norms[:, None]
+    n_leaves = depths.n_points
+    nl = _check_normals(normals, n_leaves)
+
+    albedo = np.asarray(optics.albedo, dtype=np.float64)
+    phases = [
+        canopy_bilambertian_phase(reflectance=float(r), transmittance=float(t))
+        for r, t in zip(optics.reflectance, optics.transmittance)
+    ]
+    n_ch = albedo.shape[0]
+
+    # --- sun ---------------------------------------------------------------
+    u = depths.sun_depth
+    big_u = depths.sun_thickness
+    t_sun = np.array([float(forward_fraction(ph, mu0)) for ph in phases])
+    direct = np.abs(nl @ sun) * np.exp(-u)
+    direct3 = np.repeat(direct[:, None], n_ch, axis=1)
+    g_sun = gfactor(
+        boundary_depth=depths.sample_depth,
+        directions=dirs,
+        light_direction=sun,
+        light_depth=u,
+        light_thickness=big_u,
+        up=upv,
+    )
+    if params.refine:
+        scat = _refined_leaf_irradiance(u, big_u, nl, sun, upv, mu0, phases, albedo, t_sun, params)
+    else:
+        scat = spp_field(u[:, None], big_u[:, None], albedo=albedo[None, :], forward_fraction=t_sun[None, :]).leaf_irradiance
+
+    # --- sky -----------------------------------------------------------------
+    sky_direct = np.zeros((n_leaves, n_ch))
+    sky_spp = np.zeros((n_leaves, n_ch))
+    sky_sppg = np.zeros((n_leaves, n_ch))
+    if params.sky:
+        weights = sky_weights(dirs, up=upv)
+        mus = dirs @ upv
+        for j in np.flatnonzero(weights > 0.0):
+            uj = depths.sample_depth[:, j]
+            wj = depths.sample_thickness[:, j]
+            tj = np.array([float(forward_fraction(ph, mus[j])) for ph in phases])
+            ej = spp_field(uj[:, None], wj[:, None], albedo=albedo[None, :], forward_fraction=tj[None, :]).leaf_irradiance
+            gj = gfactor(
+                boundary_depth=depths.sample_depth,
+                directions=dirs,
+                light_direction=dirs[j],
+                light_depth=uj,
+                light_thickness=wj,
+                up=upv,
+            )
+            sky_direct += (weights[j] * np.abs(nl @ dirs[j]) * np.exp(-uj))[:, None]
+            sky_spp += weights[j] * ej
+            sky_sppg += weights[j] * gj[:, None] * ej
+
+    zeros = np.zeros((n_leaves, n_ch))
+    result = SPPGResult(
+        sppg=LeafIrradiance(direct=direct3, scattered=g_sun[:, None] * scat, sky_direct=sky_direct, sky_scattered=sky_sppg),
+        spp=LeafIrradiance(direct=direct3, scattered=scat, sky_direct=sky_direct, sky_scattered=sky_spp),
+        ss=LeafIrradiance(direct=direct3, scattered=zeros, sky_direct=sky_direct, sky_scattered=zeros.copy()),
+        gfactor=g_sun,
+        directions=dirs,
+        mu0=mu0,
+        refined=bool(params.refine),
+        seconds=time.perf_counter() - start,
+    )
+    return result
