@@ -1,4 +1,4 @@
-"""The bake commands: ``smax`` (and, as they land, ``lb``, ``spp``, ``reference``)."""
+"""The bake commands: ``lb``, ``spp``, ``smax``, ``reference``, ``bench`` and the main job ``bake``."""
 
 from __future__ import annotations
 
@@ -234,7 +234,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
 @common_options
 def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, sun: str | None, leaf_optics: str | None,
          wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
-    """The main job: density, s_max and LB bakes (and a speed-vs-error report) into OUTDIR.
+    """The main job: density, s_max, SPP and LB bakes, a preview (and a speed-vs-error report) into OUTDIR.
 
     Each stage writes a layer that sublayers the previous one, so the last
     (OUTDIR/NAME.lb.usda) holds the whole bake over the untouched input.
@@ -270,3 +270,53 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
 
     run(body)
 
+
+
+@click.command()
+@SCENE
+@OUT
+@click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True, help="Density grid voxels along the longest foliage edge.")
+@click.option("--directions", type=click.IntRange(min=2), default=16, show_default=True, help="Sample directions for the G-factor and the sky (even; the paper used 16-22).")
+@click.option("--no-gfactor", is_flag=True, help="Plain SPP only: skip the sppg primvars (G is still written as a grid).")
+@click.option("--refine", is_flag=True, help="Integrate the refined radiance of shinya2013 appendix A.1 for the sun's scattered light.")
+@bake_options
+@common_options
+def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, sun: str | None,
+        leaf_optics: str | None, wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
+    """Simplified plane-parallel scattering with the G-factor (shinya2013).
+
+    Integrates the leaf-area density toward the sun and N sample directions
+    (depth and thickness, eq. 29), computes the G-factor per cell and per-leaf
+    SPPG, SPP and single-scattering irradiance. Writes grids sppGFactor,
+    sppDepth, sppThickness to OUT.vdb, primvars:foliage:sppIrradiance and
+    :gFactor (vertex) and per-leaf primvars:foliage:{spp,sppg,ss}:{direct,scattered}.
+    The paper's printed formulas were re-derived (see lighting/spp.py).
+
+    \b
+    Example:
+      foliage spp examples/tree_small.usda -o out/tree.spp.usda --directions 16
+    """
+    from foliage_tools.geometry.sun import parse_sun
+    from foliage_tools.pipeline.spp import SppParams, run_spp
+
+    def body() -> int:
+        setup_logging(verbose, quiet)
+        params = SppParams(
+            optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
+            sun=parse_sun(sun) if sun is not None else None,
+            resolution=resolution, directions=directions, gfactor=not no_gfactor, refine=refine,
+        )
+
+        def render(report) -> None:
+            table = Table(title=f"SPP in {report.seconds:.2f} s ({directions} directions)")
+            for col in ("prototype", "leaves", "cells", "mean G", "mean E_scattered SPP (G)", "SPPG (G)"):
+                table.add_column(col, justify="left" if col == "prototype" else "right")
+            for p in report.stats["prototypes"]:
+                e = p["e_scattered_mean"]
+                table.add_row(escape(p["path"]), str(p["leaves"]), str(p["cells"]), f"{p['gfactor_mean']:.3f}",
+                              f"{e['spp'][1]:.4g}", f"{e['sppg'][1]:.4g}" if "sppg" in e else "-")
+            console.stdout.print(table)
+
+        return execute(lambda progress: run_spp(scene, out, params, progress=progress), as_json=as_json, quiet=quiet, render=render)
+
+    run(body)

@@ -174,10 +174,10 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
 
 
 def _add_commands() -> None:
-    from foliage_tools.cli.bakes import bake, bench, lb, reference, smax
+    from foliage_tools.cli.bakes import bake, bench, lb, reference, smax, spp
     from foliage_tools.cli.preview import preview
 
-    for command in (lb, smax, reference, bench, bake, preview):
+    for command in (lb, spp, smax, reference, bench, bake, preview):
         cli.add_command(command)
 
 

@@ -1,6 +1,6 @@
 """``foliage bake``: the main job — every stage in sequence, each layer sublayering the previous one.
 
-OUTDIR/<name>.density.usda -> <name>.smax.usda -> <name>.lb.usda (the last
+OUTDIR/<name>.density.usda -> .smax.usda -> .spp.usda -> .lb.usda (the last
 holds the whole bake, since each layer sublayers the one before), a preview
 image comparing direct light with the LB and s_max bakes, and with ``with_reference`` a bench
 report (JSON + plot). Each stage's files are written atomically; if a stage
@@ -42,6 +42,7 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     from foliage_tools.pipeline.density import run_density
     from foliage_tools.pipeline.lb import LBBakeParams, run_lb
     from foliage_tools.pipeline.smax import SmaxParams, run_smax
+    from foliage_tools.pipeline.spp import SppParams, run_spp
 
     progress = progress or Silent()
     report = Report(command="bake", inputs=[str(path)])
@@ -55,9 +56,11 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution), progress=progress)
     smax_out = outdir / f"{stem}.smax.usda"
     stages["smax"] = _stage("smax", run_smax, density_out, smax_out, SmaxParams(optics=params.optics, sun=params.sun), progress=progress)
+    spp_out = outdir / f"{stem}.spp.usda"
+    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution), progress=progress)
     lb_out = outdir / f"{stem}.lb.usda"
     stages["lb"] = _stage(
-        "lb", run_lb, smax_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution), progress=progress
+        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution), progress=progress
     )
     final = lb_out
     from foliage_tools.pipeline.preview import PreviewParams, run_preview
@@ -65,7 +68,7 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     # a picture of the bake: direct light beside direct + LB indirect, same exposure
     stages["preview"] = _stage(
         "preview", run_preview, final, outdir / f"{stem}.png",
-        PreviewParams(compare=("direct", "lb", "smax"), size=(512, 512), sun=params.sun), progress=progress,
+        PreviewParams(compare=("direct", "lb", "spp", "smax"), size=(512, 512), sun=params.sun), progress=progress,
     )
     if params.with_reference:
         from foliage_tools.bench.plot import write_plot

@@ -18,10 +18,10 @@ def test_bake_chains_stages_and_the_last_layer_holds_everything(tmp_path):
     assert final.name == "tree_small.lb.usda"
     stage = Usd.Stage.Open(str(final))
     leaves = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Tree/Leaves"))
-    for name in ("foliage:leafId", "foliage:smax", "foliage:lbIndirect", "foliage:lb:scattered", "foliage:smax:scattered"):
+    for name in ("foliage:leafId", "foliage:smax", "foliage:lbIndirect", "foliage:lb:scattered", "foliage:smax:scattered", "foliage:sppIrradiance", "foliage:sppg:scattered"):
         assert leaves.GetPrimvar(name).HasAuthoredValue(), name
     fields = set(UsdVol.Volume(stage.GetPrimAtPath("/Tree/FoliageLighting")).GetFieldPaths())
-    assert {"density", "woodFraction", "lbSun"} <= fields
+    assert {"density", "woodFraction", "lbSun", "sppGFactor", "sppDepth", "sppThickness"} <= fields
     assert (tmp_path / "out" / "tree_small.png").stat().st_size > 1000
     assert (tmp_path / "out" / "bench.json").stat().st_size > 100 and (tmp_path / "out" / "bench.png").exists()
     assert foliage("validate", final).returncode == 0

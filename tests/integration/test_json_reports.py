@@ -11,13 +11,15 @@ from tests.integration.test_cli_errors import foliage
 SCHEMA = json.loads((Path(__file__).resolve().parents[2] / "schemas" / "json" / "report.schema.json").read_text())
 
 
-@pytest.mark.parametrize("command", ["inspect", "validate", "density", "smax", "reference", "bench", "lb"])
+@pytest.mark.parametrize("command", ["inspect", "validate", "density", "smax", "reference", "bench", "lb", "spp"])
 def test_json_report_matches_schema(command, simple_tree, tmp_path):
     args = [command, simple_tree, "--json"]
     if command == "density":
         args += ["-o", tmp_path / "d.usda", "--resolution", "8"]
     if command == "smax":
         args += ["-o", tmp_path / "s.usda"]
+    if command == "spp":
+        args += ["-o", tmp_path / "p.usda", "--resolution", "8"]
     if command == "lb":
         args += ["-o", tmp_path / "l.usda", "--resolution", "8"]
     if command == "reference":
