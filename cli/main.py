@@ -33,7 +33,9 @@ def cli() -> None:
     Typical pipeline:
       foliage inspect tree.usda                 # what the bakes will see
       foliage validate tree.usda --strict       # CI asset check
-      foliage density tree.usda -o tree.density.usda --resolution 64
+      foliage bake tree.usda -o baked/          # density, smax, spp, lb + preview
+      foliage bench tree.usda --plot bench.png  # speed vs error against Monte Carlo
+      foliage preview baked/tree.lb.usda -o tree.png --compare direct,lb,spp
 
     Exit codes: 0 ok, 1 validation findings, 2 bad usage or input,
     3 internal error (crash log written), 130 interrupted.
