@@ -124,3 +124,22 @@ def test_absurd_voxel_size_is_a_usage_error_not_a_memory_error(tmp_path, simple_
     r = foliage("density", simple_tree, "-o", tmp_path / "o.usda", "--voxel-size", "1e-5")
     assert r.returncode == 2 and "too large" in r.stderr and "--voxel-size" in r.stderr
     assert not (tmp_path / "o.usda").exists()
+
+
+def test_interrupt_exits_130_and_leaves_no_output(tmp_path):
+    import signal
+    import time
+
+    example = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
+    out = tmp_path / "r.usda"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "foliage_tools", "reference", str(example), "-o", str(out), "--paths", "400000000"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    # wait until the tracing has started (the scene is read in well under a few seconds)
+    time.sleep(6)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err
+    assert list(tmp_path.iterdir()) == []
