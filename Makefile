@@ -29,8 +29,8 @@ test-slow: setup
 	$(PY) -m pytest -m slow -q
 
 # Speed studies (not tests): each script prints its own table. Run one with
-# `make bench BENCH=density` (density, lb, smax, reference, preview, spp_tables).
-BENCH ?= density lb smax reference preview spp_tables
+# `make bench BENCH=density` (density, lb, lb_issue, smax, reference, preview, spp_tables, sppg).
+BENCH ?= density lb smax reference preview spp_tables sppg
 bench: setup
 	@for b in $(BENCH); do \
 	  if [ -f benchmarks/bench_$$b.py ]; then echo "== benchmarks/bench_$$b.py"; $(PY) benchmarks/bench_$$b.py || exit 1; fi; \

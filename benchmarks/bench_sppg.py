@@ -1,0 +1,184 @@
+"""SPPG bake time against triangle count, and ray-count vs grid optical depth (shinya2013 issue #5).
+
+Part 1 — bake time. Generated trees (``examples/make_tree.build_tree``, arrays
+only, no USD round trip) of about 10k, 100k and 1M leaf triangles (two per
+card, plus the wood, which the grid path ignores). Timed: density grid
+(area method, 64 voxels along the longest edge, the ``foliage spp`` default)
++ optical depths at every leaf centre toward the sun and 16 directions (grid
+path) + G-factor + ``solve_sppg`` (sun and sky). Numba compilation is
+excluded (one warm-up bake on a small tree first). The paper's figure is
+beside it: 117 ms for 1M polygons on a 2009 GPU (shinya2013 sec. 6).
+
+Part 2 — depth paths. Per leaf, the optical depth toward the sun from the grid
+path (``lighting.depth``) and from leaf crossing counts through the actual
+leaf triangles (``lighting.raydepth``; one crossing = one optical depth),
+on ``examples/tree_small.usda`` and the Webots oak: median and 95th
+percentile of |ray - grid| / grid over leaves with grid depth >= 0.5 (shallower
+leaves make the ratio meaningless), for 1 ray per leaf (the paper's single
+count) and 16 rays per leaf (area average, Poisson noise / 4); then the mean
+depth of both paths against the grid resolution (the grid path at a leaf
+centre includes part of the leaf's own area; the ray path skips its own leaf).
+
+Usage: ``python benchmarks/bench_sppg.py [--quick]`` (``--quick`` skips 1M).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "examples"))
+OAK = REPO.parent / "shared" / "assets" / "webots_oak" / "oak.usda"
+EXAMPLE = REPO / "examples" / "tree_small.usda"
+PAPER_MS_1M = 117.0
+
+
+def _leaf_triangles(geo) -> np.ndarray:
+    quads = geo.leaf_points.reshape(-1, 4, 3)
+    return np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+
+
+def bake_arrays(tri, centers, normals, sun, up, resolution=64, n_dirs=16):
+    """The timed SPPG bake on plain arrays; returns (seconds per stage, result)."""
+    from foliage_tools.geometry.voxelize import area_per_voxel, grid_for_bounds
+    from foliage_tools.lighting import depth as dp
+    from foliage_tools.lighting import gfactor as gf
+    from foliage_tools.lighting.optics import parse_leaf_optics
+
+    optics = parse_leaf_optics(None)
+    t = {}
+    t0 = time.perf_counter()
+    pts = tri.reshape(-1, 3)
+    grid = grid_for_bounds(pts.min(0), pts.max(0), resolution=resolution)
+    rho = area_per_voxel(tri, grid) / grid.voxel_volume
+    t["density"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    dirs = gf.sample_directions(n_dirs, up=up)
+    ds = dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs, points=centers)
+    t["depths"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res = gf.solve_sppg(ds, normals=normals, optics=optics, sun_direction=sun, directions=dirs, up=up)
+    t["G+solve"] = time.perf_counter() - t0
+    t["total"] = sum(t.values())
+    return t, res
+
+
+def tree_arrays(n_leaf_triangles: int, seed: int = 1):
+    from make_tree import build_tree
+
+    n = n_leaf_triangles // 2
+    # total leaf area of examples/tree_small (1500 cards of 0.1 m: 15 m² in the same 4 m / 1.2 m crown)
+    size = 0.1 * np.sqrt(1500 / n)
+    geo = build_tree(leaves=n, leaf_size=float(size), crown="ellipsoid", height=4.0, crown_radius=1.2, seed=seed)
+    tri = _leaf_triangles(geo)
+    quads = geo.leaf_points.reshape(-1, 4, 3)
+    centers = quads.mean(axis=1)
+    normals = np.cross(quads[:, 1] - quads[:, 0], quads[:, 2] - quads[:, 0])
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    return tri, centers, normals
+
+
+def sun_vector(az=45.0, el=60.0):
+    a, e = np.radians(az), np.radians(el)
+    return np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+
+
+def part_time(sizes):
+    up = np.array([0.0, 0.0, 1.0])
+    sun = sun_vector()
+    tri, c, n = tree_arrays(2000)
+    bake_arrays(tri, c, n, sun, up)  # warm-up: numba compile / cache load
+    print("SPPG bake time (density 64^3-ish grid + grid depths at leaves, sun + 16 dirs + G + solve_sppg with sky)")
+    print(f"{'leaf tris':>10} {'leaves':>8} {'density s':>10} {'depths s':>9} {'G+solve s':>10} {'total s':>8}  paper (1M polys, 2009 GPU)")
+    for s in sizes:
+        tri, c, n = tree_arrays(s)
+        t, res = bake_arrays(tri, c, n, sun, up)
+        paper = f"{PAPER_MS_1M / 1000:.3f} s" if s >= 1_000_000 else ""
+        print(f"{len(tri):>10} {len(c):>8} {t['density']:>10.3f} {t['depths']:>9.3f} {t['G+solve']:>10.3f} {t['total']:>8.3f}  {paper}")
+        assert np.all(np.isfinite(res.sppg.scattered))
+
+
+def depth_comparison(path, rays_per_leaf=1, resolution=64, min_depth=0.5, seed=0):
+    """(grid sun depth, ray sun depth) per leaf of the first prototype, sun in prototype space."""
+    from foliage_tools.lighting import depth as dp
+    from foliage_tools.lighting import gfactor as gf
+    from foliage_tools.lighting import raydepth as rd
+    from foliage_tools.params import DensityParams
+    from foliage_tools.pipeline.density import compute_density
+    from foliage_tools.pipeline.report import Silent
+    from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
+
+    report, scene, sun = begin_bake("spp", Path(path), None, None, Silent())
+    proto = scene.prototypes[0]
+    sun_local = sun_in_prototype(scene, 0, sun, report.warnings)
+    dirs = gf.sample_directions(16)
+    dens = compute_density(proto, DensityParams(resolution=resolution, method="area"))
+    g = dp.depth_samples(dens.density, dens.grid, sun_direction=sun_local, directions=dirs, points=proto.leaves.centers)
+    r = rd.leaf_ray_depth_samples(
+        proto.triangles(leaves=True), rd.prototype_leaf_ids(proto), sun_direction=sun_local, directions=dirs,
+        rays_per_leaf=rays_per_leaf, centers=proto.leaves.centers if rays_per_leaf == 1 else None, seed=seed,
+    )
+    return g, r
+
+
+def relative_stats(g, r, min_depth=0.5):
+    gd, rdp = g.sun_depth, r.sun_depth
+    keep = gd >= min_depth
+    rel = np.abs(rdp[keep] - gd[keep]) / gd[keep]
+    return {
+        "leaves": int(gd.size), "used": int(keep.sum()),
+        "median": float(np.median(rel)), "p95": float(np.percentile(rel, 95)),
+        "mean_ratio": float(rdp[keep].mean() / gd[keep].mean()),
+        "mean_diff_all": float(np.mean(rdp - gd)),
+    }
+
+
+def part_depth():
+    print("\nPer-leaf optical depth toward the sun: ray counts (lighting.raydepth) vs grid integral (lighting.depth, 64 vox)")
+    print("relative difference |ray - grid| / grid over leaves with grid depth >= 0.5")
+    print("(last column: mean of ray - grid over all leaves, in optical depth)")
+    print(f"{'asset':>16} {'rays/leaf':>9} {'leaves':>7} {'used':>5} {'median':>7} {'p95':>7} {'mean ray/mean grid':>19} {'mean diff':>10}")
+    for name, path in (("tree_small", EXAMPLE), ("webots_oak", OAK)):
+        if not path.exists():
+            print(f"{name:>16}  (missing {path})")
+            continue
+        for k in (1, 16):
+            g, r = depth_comparison(path, rays_per_leaf=k)
+            s = relative_stats(g, r)
+            print(f"{name:>16} {k:>9} {s['leaves']:>7} {s['used']:>5} {s['median']:>7.3f} {s['p95']:>7.3f} {s['mean_ratio']:>19.3f} {s['mean_diff_all']:>10.3f}")
+
+
+def part_resolution():
+    """Mean sun depth per path against the grid resolution: the grid path at a leaf centre also
+    integrates the leaf's own area smeared over its voxels, which grows as voxels shrink below the leaf."""
+    print("\nMean per-leaf sun depth: grid path at 32/64/128 voxels vs ray counts (16 rays per leaf, own leaf skipped)")
+    print(f"{'asset':>16} {'grid 32':>8} {'grid 64':>8} {'grid 128':>9} {'rays':>6}")
+    for name, path in (("tree_small", EXAMPLE), ("webots_oak", OAK)):
+        if not path.exists():
+            continue
+        vals = []
+        for res in (32, 64, 128):
+            g, r = depth_comparison(path, rays_per_leaf=16, resolution=res)
+            vals.append(g.sun_depth.mean())
+        print(f"{name:>16} {vals[0]:>8.3f} {vals[1]:>8.3f} {vals[2]:>9.3f} {r.sun_depth.mean():>6.3f}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="skip the 1M-triangle tree")
+    args = ap.parse_args(argv)
+    sizes = [10_000, 100_000] if args.quick else [10_000, 100_000, 1_000_000]
+    part_depth()
+    part_resolution()
+    print()
+    part_time(sizes)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
