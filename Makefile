@@ -30,7 +30,7 @@ test-slow: setup
 
 # Speed studies (not tests): each script prints its own table. Run one with
 # `make bench BENCH=density` (density, lb, lb_issue, smax, reference, preview, spp_tables, sppg).
-BENCH ?= density lb smax reference preview spp_tables sppg
+BENCH ?= density lb lb_issue smax reference preview spp_tables sppg
 bench: setup
 	@for b in $(BENCH); do \
 	  if [ -f benchmarks/bench_$$b.py ]; then echo "== benchmarks/bench_$$b.py"; $(PY) benchmarks/bench_$$b.py || exit 1; fi; \
