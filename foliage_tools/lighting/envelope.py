@@ -641,18 +641,22 @@ def _near_kernel(x, nl, area, cell, start, lo, h, shape, r1, r2, reach, inv_omeg
 
 
 @njit(cache=True)
+def _cell(x, i, lo, h, shape):
+    """Lower node and fractional offsets of point i for cloud-in-cell weights (clamped to the grid)."""
+    u = (x[i, 0] - lo[0]) / h
+    v = (x[i, 1] - lo[1]) / h
+    w = (x[i, 2] - lo[2]) / h
+    i0 = min(max(math.floor(u), 0), shape[0] - 2)
+    j0 = min(max(math.floor(v), 0), shape[1] - 2)
+    k0 = min(max(math.floor(w), 0), shape[2] - 2)
+    return i0, j0, k0, u - i0, v - j0, w - k0
+
+
+@njit(cache=True)
 def _deposit(x, mass, lo, h, shape, grid):
     """Cloud-in-cell deposit of per-leaf masses (L, 4) onto 4 node grids."""
     for i in range(x.shape[0]):
-        u = (x[i, 0] - lo[0]) / h
-        v = (x[i, 1] - lo[1]) / h
-        w = (x[i, 2] - lo[2]) / h
-        i0 = min(max(math.floor(u), 0), shape[0] - 2)
-        j0 = min(max(math.floor(v), 0), shape[1] - 2)
-        k0 = min(max(math.floor(w), 0), shape[2] - 2)
-        fu = u - i0
-        fv = v - j0
-        fw = w - k0
+        i0, j0, k0, fu, fv, fw = _cell(x, i, lo, h, shape)
         for di in range(2):
             wu = fu if di else 1.0 - fu
             for dj in range(2):
@@ -668,15 +672,7 @@ def _deposit(x, mass, lo, h, shape, grid):
 def _interpolate(x, lo, h, shape, field, out):
     """Trilinear interpolation of node fields (F, nx, ny, nz) at the leaves, added to ``out`` (L, F)."""
     for i in prange(x.shape[0]):
-        u = (x[i, 0] - lo[0]) / h
-        v = (x[i, 1] - lo[1]) / h
-        w = (x[i, 2] - lo[2]) / h
-        i0 = min(max(math.floor(u), 0), shape[0] - 2)
-        j0 = min(max(math.floor(v), 0), shape[1] - 2)
-        k0 = min(max(math.floor(w), 0), shape[2] - 2)
-        fu = u - i0
-        fv = v - j0
-        fw = w - k0
+        i0, j0, k0, fu, fv, fw = _cell(x, i, lo, h, shape)
         for di in range(2):
             wu = fu if di else 1.0 - fu
             for dj in range(2):

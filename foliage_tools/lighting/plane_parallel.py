@@ -83,7 +83,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from .phase import PhaseFunction
+from .phase import PhaseFunction, _as_real
 
 __all__ = ["SlabSolution", "solve_slab", "solve_slab_diffuse"]
 
@@ -832,17 +832,7 @@ class SlabSolution:
 # --------------------------------------------------------------------------
 
 
-def _real(name: str, value) -> float:
-    if isinstance(value, bool):
-        # ValueError, not TypeError: the project reports all bad inputs as ValueError
-        raise ValueError(f"{name} must be a real number, got {value!r}")  # noqa: TRY004
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
-    if math.isnan(out):
-        raise ValueError(f"{name} must not be NaN")
-    return out
+_real = _as_real  # one checker for both modules (lighting.phase)
 
 
 def _validate(tau, omega, phase, n_streams, depths, floor_albedo):
