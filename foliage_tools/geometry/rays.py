@@ -381,44 +381,84 @@ class PeriodicRayScene:
         return PeriodicHits(tri_id, t_total, points, truncated)
 
 
+def unit_rows(d, name: str) -> np.ndarray:
+    """(N, 3) unit vectors from (N, 3) or (3,) input; ValueError naming ``name`` if not finite or zero."""
+    a = np.asarray(d, dtype=np.float64)
+    if a.ndim == 1:
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] < 1 or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite with shape (N, 3) or (3,), got {np.shape(d)}")
+    n = np.linalg.norm(a, axis=1)
+    if np.any(n == 0.0):
+        raise ValueError(f"{name} must be non-zero vectors")
+    return a / n[:, None]
+
+
 def count_crossings(
-    scene: RayScene, origins, direction, *, skip_ids=None, id_of_triangle=None, max_hits: int = 10_000
+    scene: RayScene,
+    origins,
+    directions,
+    *,
+    skip_ids=None,
+    id_of_triangle=None,
+    max_hits: int = 100_000,
+    workers: int = 1,
 ) -> np.ndarray:
-    """Number of triangles each ray crosses from its origin to infinity (shinya2013 eq. (29) counts n±).
+    """Triangles crossed by the ray from every origin along every direction, to infinity (shinya2013 eq. (29) counts n±).
 
     Parameters
     ----------
     scene : RayScene
-    origins : (N, 3) float
-    direction : (3,) float
-        One direction for all rays.
-    skip_ids, id_of_triangle : (N,) int and (T,) int, optional
-        Hits whose ``id_of_triangle`` equals the ray's ``skip_ids`` are not counted
-        (e.g. the leaf the ray starts on, which may hold several coplanar triangles).
+    origins : (P, 3) array_like
+    directions : (D, 3) array_like
+        Normalised here.
+    skip_ids : (P,) int, optional
+        With ``id_of_triangle`` (T,): hits on triangles whose id equals the
+        origin's ``skip_ids`` are not counted (the leaf the ray starts on).
     max_hits : int
-        Safety bound on crossings per ray.
+        Safety bound on crossings per ray; a ray still hitting after that many
+        raises ``RuntimeError`` (never a silent truncation).
+    workers : int
+        Threads for Embree.
 
     Returns
     -------
-    (N,) int64 crossing counts.
+    numpy.ndarray (P, D) int64
     """
-    o = np.array(origins, dtype=np.float64).reshape(-1, 3)
-    d = np.broadcast_to(np.asarray(direction, dtype=np.float64) / np.linalg.norm(direction), o.shape).copy()
-    counts = np.zeros(o.shape[0], dtype=np.int64)
-    live = np.arange(o.shape[0])
+    o = np.asarray(origins, dtype=np.float64)
+    if o.ndim != 2 or o.shape[1] != 3 or not np.all(np.isfinite(o)):
+        raise ValueError(f"origins must be finite with shape (P, 3), got {np.shape(origins)}")
+    dirs = unit_rows(directions, "directions")
+    p, nd = o.shape[0], dirs.shape[0]
+    skip = None
+    if (skip_ids is None) != (id_of_triangle is None):
+        raise ValueError("skip_ids and id_of_triangle go together")
+    if skip_ids is not None:
+        skip = np.asarray(skip_ids, dtype=np.int64).reshape(-1)
+        tri_ids = np.asarray(id_of_triangle, dtype=np.int64).reshape(-1)
+        if skip.shape != (p,) or tri_ids.shape != (scene.n_triangles,):
+            raise ValueError(f"skip_ids must be ({p},) and id_of_triangle ({scene.n_triangles},)")
+        skip = np.repeat(skip, nd)
+    ro = np.repeat(o, nd, axis=0)
+    rd = np.tile(dirs, (p, 1))
+    counts = np.zeros(p * nd, dtype=np.int64)
     eps = scene.offset_distance()
-    o = o + eps * d
+    ro = ro + eps * rd
+    live = np.arange(p * nd)
     for _ in range(max_hits):
         if live.size == 0:
             break
-        tri, t = scene.intersect(o[live], d[live])
+        tri, t = scene.intersect(ro[live], rd[live], workers=workers)
         hit = tri >= 0
-        if id_of_triangle is not None and skip_ids is not None:
-            own = np.zeros_like(hit)
-            own[hit] = np.asarray(id_of_triangle)[tri[hit]] == np.asarray(skip_ids)[live[hit]]
-            counts[live[hit & ~own]] += 1
+        hl = live[hit]
+        if skip is not None:
+            own = tri_ids[tri[hit]] == skip[hl]
+            counts[hl[~own]] += 1
         else:
-            counts[live[hit]] += 1
-        o[live[hit]] += (t[hit, None] + eps) * d[live[hit]]
-        live = live[hit]
-    return counts
+            counts[hl] += 1
+        ro[hl] += (t[hit, None] + eps) * rd[hl]
+        live = hl
+    else:
+        if live.size:
+            raise RuntimeError(f"{live.size} ray(s) crossed more than max_hits = {max_hits} triangles")
+    return counts.reshape(p, nd)

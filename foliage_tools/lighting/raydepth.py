@@ -42,95 +42,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.rays import RayScene
+from ..geometry.rays import RayScene, unit_rows
+from ..geometry.rays import count_crossings as crossing_counts  # one implementation, in geometry.rays
 from .depth import DepthSamples
 
 __all__ = ["CROSSING_DEPTH", "crossing_counts", "leaf_ray_depth_samples", "prototype_leaf_ids", "ray_depth_samples"]
 
 #: Optical depth of one leaf crossing (see the module docstring: σt · n/σt).
 CROSSING_DEPTH = 1.0
-
-
-def _unit_rows(d, name: str) -> np.ndarray:
-    a = np.asarray(d, dtype=np.float64)
-    if a.ndim == 1:
-        a = a[None, :]
-    if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] < 1 or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite with shape (N, 3) or (3,), got {np.shape(d)}")
-    n = np.linalg.norm(a, axis=1)
-    if np.any(n == 0.0):
-        raise ValueError(f"{name} must be non-zero vectors")
-    return a / n[:, None]
-
-
-def crossing_counts(
-    scene: RayScene,
-    origins,
-    directions,
-    *,
-    skip_ids=None,
-    id_of_triangle=None,
-    max_hits: int = 100_000,
-    workers: int = 1,
-) -> np.ndarray:
-    """Triangles crossed by the ray from every origin along every direction, to infinity.
-
-    Parameters
-    ----------
-    scene : RayScene
-    origins : (P, 3) array_like
-    directions : (D, 3) array_like
-        Normalised here.
-    skip_ids : (P,) int, optional
-        With ``id_of_triangle`` (T,): hits on triangles whose id equals the
-        origin's ``skip_ids`` are not counted (the leaf the ray starts on).
-    max_hits : int
-        Safety bound on crossings per ray; a ray still hitting after that many
-        raises ``RuntimeError`` (never a silent truncation).
-    workers : int
-        Threads for Embree.
-
-    Returns
-    -------
-    numpy.ndarray (P, D) int64
-    """
-    o = np.asarray(origins, dtype=np.float64)
-    if o.ndim != 2 or o.shape[1] != 3 or not np.all(np.isfinite(o)):
-        raise ValueError(f"origins must be finite with shape (P, 3), got {np.shape(origins)}")
-    dirs = _unit_rows(directions, "directions")
-    p, nd = o.shape[0], dirs.shape[0]
-    skip = None
-    if (skip_ids is None) != (id_of_triangle is None):
-        raise ValueError("skip_ids and id_of_triangle go together")
-    if skip_ids is not None:
-        skip = np.asarray(skip_ids, dtype=np.int64).reshape(-1)
-        tri_ids = np.asarray(id_of_triangle, dtype=np.int64).reshape(-1)
-        if skip.shape != (p,) or tri_ids.shape != (scene.n_triangles,):
-            raise ValueError(f"skip_ids must be ({p},) and id_of_triangle ({scene.n_triangles},)")
-        skip = np.repeat(skip, nd)
-    ro = np.repeat(o, nd, axis=0)
-    rd = np.tile(dirs, (p, 1))
-    counts = np.zeros(p * nd, dtype=np.int64)
-    eps = scene.offset_distance()
-    ro = ro + eps * rd
-    live = np.arange(p * nd)
-    for _ in range(max_hits):
-        if live.size == 0:
-            break
-        tri, t = scene.intersect(ro[live], rd[live], workers=workers)
-        hit = tri >= 0
-        hl = live[hit]
-        if skip is not None:
-            own = tri_ids[tri[hit]] == skip[hl]
-            counts[hl[~own]] += 1
-        else:
-            counts[hl] += 1
-        ro[hl] += (t[hit, None] + eps) * rd[hl]
-        live = hl
-    else:
-        if live.size:
-            raise RuntimeError(f"{live.size} ray(s) crossed more than max_hits = {max_hits} triangles")
-    return counts.reshape(p, nd)
 
 
 def ray_depth_samples(
@@ -153,10 +72,10 @@ def ray_depth_samples(
     """
     if not np.isfinite(crossing_depth) or crossing_depth < 0:
         raise ValueError(f"crossing_depth must be finite and >= 0, got {crossing_depth}")
-    sun = _unit_rows(sun_direction, "sun_direction")
+    sun = unit_rows(sun_direction, "sun_direction")
     if sun.shape[0] != 1:
         raise ValueError("sun_direction must be one direction (3,)")
-    dirs = _unit_rows(directions, "directions")
+    dirs = unit_rows(directions, "directions")
     all_dirs = np.concatenate([sun, dirs, -sun, -dirs])
     c = crossing_counts(scene, points, all_dirs, skip_ids=skip_ids, id_of_triangle=id_of_triangle, workers=workers)
     return _to_samples(c.astype(np.float64) * crossing_depth, dirs.shape[0])
@@ -216,8 +135,8 @@ def leaf_ray_depth_samples(
     n_leaves = int(ids[ok].max()) + 1 if np.any(ok) else 0
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     scene = RayScene(tri)
-    sun = _unit_rows(sun_direction, "sun_direction")
-    dirs = _unit_rows(directions, "directions")
+    sun = unit_rows(sun_direction, "sun_direction")
+    dirs = unit_rows(directions, "directions")
     all_dirs = np.concatenate([sun, dirs, -sun, -dirs])
     if rays_per_leaf == 1:
         if centers is None:

@@ -40,19 +40,12 @@ def _per_global_leaf(world: World, per_proto: dict[int, np.ndarray], n_leaves: i
 
 def depth_thickness(world: World, sun_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per leaf, crossings toward the sun (n+) and total (n+ + n−) through the geometry (shinya2013 eq. (29))."""
-    scene = RayScene(world.triangles)
-    ids = world.leaf_of_triangle
-    ok = ids >= 0
-    area = world.leaf_area
-    # leaf centres: area-weighted triangle centroids
-    tri_area = 0.5 * np.linalg.norm(np.cross(world.triangles[:, 1] - world.triangles[:, 0], world.triangles[:, 2] - world.triangles[:, 0]), axis=1)
-    cen = world.triangles.mean(axis=1)
-    centers = np.stack([np.bincount(ids[ok], weights=tri_area[ok] * cen[ok, i], minlength=len(area)) for i in range(3)], axis=1)
-    centers /= np.maximum(area, 1e-300)[:, None]
-    own = np.arange(len(area))
-    n_plus = count_crossings(scene, centers, sun_dir, skip_ids=own, id_of_triangle=ids)
-    n_minus = count_crossings(scene, centers, -np.asarray(sun_dir), skip_ids=own, id_of_triangle=ids)
-    return n_plus.astype(float), (n_plus + n_minus).astype(float)
+    own = np.arange(len(world.leaf_area))
+    counts = count_crossings(
+        RayScene(world.triangles), world.leaf_centers, [sun_dir, -np.asarray(sun_dir)],
+        skip_ids=own, id_of_triangle=world.leaf_of_triangle,
+    )
+    return counts[:, 0].astype(float), counts.sum(axis=1).astype(float)
 
 
 def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = None) -> Report:

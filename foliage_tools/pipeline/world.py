@@ -22,6 +22,8 @@ class World:
     """(T,) int64 global leaf id, -1 for wood and degenerate triangles."""
     leaf_area: np.ndarray
     """(L,) float64 one-sided world-space area of each global leaf."""
+    leaf_centers: np.ndarray
+    """(L, 3) float64 world-space leaf centres (the prototypes' centres placed by each instance)."""
     instance_prototype: np.ndarray
     """(N,) prototype index of each instance (the order of ``Scene.instances``)."""
     offsets: np.ndarray
@@ -32,7 +34,7 @@ class World:
 
 
 def assemble(scene: Scene) -> World:
-    tris, leaf_ids = [], []
+    tris, leaf_ids, centers = [], [], []
     offsets = [0]
     for inst in scene.instances:
         proto = scene.prototypes[inst.prototype]
@@ -45,10 +47,11 @@ def assemble(scene: Scene) -> World:
                 leaf_ids.append(np.where(ids >= 0, ids + offsets[-1], -1))
             else:
                 leaf_ids.append(np.full(len(v), -1, dtype=np.int64))
+        centers.append(proto.leaves.centers @ m[:3, :3].T + m[:3, 3])
         offsets.append(offsets[-1] + proto.leaves.count)
     if not tris:
         z = np.zeros((0, 3, 3))
-        return World(z, np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64), np.array([0]))
+        return World(z, np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64), np.array([0]))
     triangles = np.concatenate(tris)
     leaf_of_triangle = np.concatenate(leaf_ids).astype(np.int64)
     cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
@@ -59,6 +62,7 @@ def assemble(scene: Scene) -> World:
         triangles=triangles,
         leaf_of_triangle=leaf_of_triangle,
         leaf_area=leaf_area,
+        leaf_centers=np.concatenate(centers),
         instance_prototype=np.array([i.prototype for i in scene.instances], dtype=np.int64),
         offsets=np.array(offsets, dtype=np.int64),
     )

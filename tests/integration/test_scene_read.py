@@ -78,7 +78,7 @@ def _forest(tmp_path):
     """3 native instances of one asset + a PointInstancer with 2 prototypes, 5 instances, one masked."""
     from pxr import Gf, Usd, UsdGeom, Vt
 
-    asset = write_mesh_stage(tmp_path / "asset.usda", {"Leaves": {**cards_mesh([(0, 0, 1), (0.3, 0, 1)]), "isLeaf": True}})
+    write_mesh_stage(tmp_path / "asset.usda", {"Leaves": {**cards_mesh([(0, 0, 1), (0.3, 0, 1)]), "isLeaf": True}})
     stage = Usd.Stage.CreateNew(str(tmp_path / "forest.usda"))
     UsdGeom.SetStageUpAxis(stage, "Z")
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -133,7 +133,7 @@ def test_instance_transforms_place_leaves_in_the_world(tmp_path):
 
 
 def test_distant_light_direction_points_toward_the_sun(tmp_path):
-    from pxr import Gf, Usd, UsdGeom, UsdLux
+    from pxr import Usd, UsdLux
 
     path = write_mesh_stage(tmp_path / "l.usda", {"Leaves": {**cards_mesh([(0, 0, 0)]), "isLeaf": True}})
     stage = Usd.Stage.Open(str(path))

@@ -56,7 +56,7 @@ def test_sun_flag_overrides_the_stage_sun_with_the_same_angle_convention(tmp_pat
     stage_sun = run_smax(EXAMPLE, tmp_path / "a.usda", SmaxParams(optics=optics))
     # the example's DistantLight sits at azimuth 45, elevation 60: the flag with those angles must agree exactly
     flag_same = run_smax(EXAMPLE, tmp_path / "b.usda", SmaxParams(optics=optics, sun=(45.0, 60.0)))
-    flag_other = run_smax(EXAMPLE, tmp_path / "c.usda", SmaxParams(optics=optics, sun=(225.0, 20.0)))
+    run_smax(EXAMPLE, tmp_path / "c.usda", SmaxParams(optics=optics, sun=(225.0, 20.0)))
     assert stage_sun.stats["sun"]["source"] == "</Lights/Sun>" and flag_same.stats["sun"]["source"] == "--sun"
     a, b, c = (_direct(tmp_path / f"{n}.usda") for n in "abc")
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)

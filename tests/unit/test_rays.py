@@ -255,10 +255,9 @@ def test_count_crossings_through_a_stack_of_planes():
         tris += [(a, b, c), (a, c, d)]
     scene = RayScene(np.array(tris, dtype=float))
     origins = np.array([[0.1, 0.2, 0.0], [0.3, -0.2, 2.5], [5.0, 5.0, 0.0]])
-    up = count_crossings(scene, origins, (0, 0, 1))
-    down = count_crossings(scene, origins, (0, 0, -1))
-    assert up.tolist() == [5, 3, 0] and down.tolist() == [0, 2, 0]
+    counts = count_crossings(scene, origins, [(0, 0, 1), (0, 0, -1)])
+    assert counts[:, 0].tolist() == [5, 3, 0] and counts[:, 1].tolist() == [0, 2, 0]
     # a ray starting on plane 3 skips its own leaf's (coplanar) triangles
     leaf = np.repeat(np.arange(5), 2)
     on = count_crossings(scene, [[0.1, 0.1, 3.0]], (0, 0, 1), skip_ids=[2], id_of_triangle=leaf)
-    assert on.tolist() == [2]
+    assert on.tolist() == [[2]]

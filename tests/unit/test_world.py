@@ -30,3 +30,11 @@ def test_prototype_means_average_over_instances(tmp_path):
     for p, m in enumerate(means):
         expected = np.mean([per_leaf[world.instance_slice(n)] for n, q in enumerate(world.instance_prototype) if q == p], axis=0)
         np.testing.assert_allclose(m, expected)
+
+
+def test_world_leaf_centres_are_the_prototype_centres_placed_by_each_instance(tmp_path):
+    scene, _ = read_scene(_forest(tmp_path))
+    world = assemble(scene)
+    for n, inst in enumerate(scene.instances):
+        c = scene.prototypes[inst.prototype].leaves.centers
+        np.testing.assert_allclose(world.leaf_centers[world.instance_slice(n)], (np.c_[c, np.ones(len(c))] @ inst.transform.T)[:, :3])
