@@ -13,6 +13,7 @@ from foliage_tools import __version__
 from foliage_tools.errors import InputError, UsageError
 from foliage_tools.geometry.voxelize import GridSpec, area_per_voxel, grid_for_bounds, mark_wood_fraction, subgrid_coverage
 from foliage_tools.params import DensityParams
+from foliage_tools.pipeline.leafdata import native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.read import read_scene
@@ -103,10 +104,7 @@ def leaf_id_edits(scene: Scene, warnings: list[str]) -> list[PrimvarEdit]:
     edits = []
     for proto in scene.prototypes:
         if not proto.editable and proto.leaves.count:
-            warnings.append(
-                f"prototype <{proto.path}> is a native instance: primvars:foliage:leafId cannot be authored on its "
-                "meshes (they live in a referenced layer); its grids are under /FoliageBakes."
-            )
+            warnings.append(native_instance_warning(proto, "primvars:foliage:leafId") + " Its grids are under /FoliageBakes.")
             continue
         for mesh, ids in zip(proto.meshes, proto.leaves.face_leaf_ids):
             if mesh.is_leaf:
