@@ -49,6 +49,7 @@ from foliage_tools.lighting.lb import (
     scattered_leaf_irradiance,
     solve,
     sun_boundary,
+    unscattered_energy,
 )
 
 unit = st.floats(0.0, 1.0, allow_nan=False)
@@ -435,3 +436,35 @@ def test_boundary_constructors():
         base_boundary(19)
     with pytest.raises(ValueError):
         Boundary("x", (1.0,) * 17)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_unscattered_energy_equals_the_unscattered_lattice(seed):
+    """The one-pass never-scattered field is the steady state of the lattice with sigma_s = 0.
+
+    Random density with empty nodes, brown nodes with their own sigma_t, and
+    boundaries that are not single beams (sun, ambient) next to Kronecker bases.
+    """
+    rng = np.random.default_rng(seed)
+    rho = rng.uniform(0.0, 0.6, (11, 9, 13))
+    rho[rng.random(rho.shape) < 0.4] = 0.0
+    mask = rng.random(rho.shape) < 0.15
+    med = Medium(sigma_a=(0.3, 0.05), sigma_s=(0.6, 0.9), g=(0.2, -0.3))
+    bmed = Medium(sigma_a=(0.8, 0.7), sigma_s=(0.1, 0.2), g=(-1.0, -1.0))
+    bounds = (sun_boundary((0.3, -0.5, 0.8)), ambient_boundary(), base_boundary(7), base_boundary(18))
+    pb = LBProblem(rho, med, bounds, brown_mask=mask, brown_medium=bmed)
+    fast = unscattered_energy(pb, "float64")
+    slow = solve(pb.unscattered(), LBParams(dtype="float64", tolerance=1e-13)).energy_density
+    np.testing.assert_allclose(fast, slow, rtol=1e-10, atol=1e-12)
+    assert fast.shape == (11, 9, 13, 4, 2)
+    assert fast.min() >= 0.0
+
+
+def test_ambient_base_is_the_sum_of_the_kronecker_bases():
+    """steele2010 B_0 = sum_k B_k by linearity: the bake solves 18 bases and adds them up."""
+    rng = np.random.default_rng(3)
+    rho = rng.uniform(0.0, 0.5, (7, 8, 6))
+    med = Medium(sigma_a=(0.1,), sigma_s=(0.8,), g=(0.5,))
+    r = solve(LBProblem(rho, med, relighting_boundaries()), LBParams(dtype="float64", tolerance=1e-12))
+    u = r.energy_density[..., 0]
+    np.testing.assert_allclose(u[..., 0], u[..., 1:].sum(axis=-1), rtol=1e-9)
