@@ -81,13 +81,23 @@ R = 3 / 57 against 61 / 101 for the row layout, whose streaming part runs
 at memcpy speed. Memory: 72 C K
 bytes per node and field (64^3 with 19 bases x RGB: 1.08 GB); plain
 iteration holds 2 fields, BiCGSTAB 6. Only non-empty parts of each row
-collide; empty rows are copied. ``_reference_step`` is the plain numpy
+collide; empty rows are copied. The collision of a long occupied run (at
+least ``_BLAS_MIN_RUN`` values, i.e. many right-hand sides) is one
+(18 x 18) @ (18 x n) product per channel and material done by BLAS gemm on a
+contiguous copy of the run: per core it ran 2.2x faster than the loop (which
+re-reads its accumulators from L1 for every f_j), and the whole sweep 1.2-1.3x
+(64^3 dense, 57 rhs; streaming is the rest). Short runs keep the loop, where
+a gemm call costs more than it saves. ``_reference_step`` is the plain numpy
 version of the update on the paper's 19 directions that the kernel is
 tested against.
 
 Steady state
 ------------
-The steady state solves ``(I - T) f = beta`` where T is one sweep with zero
+Every solver starts from the exact never-scattered field (``LBParams.initial``,
+``unscattered_energy``), so the direct beam is in place from sweep 0 and the
+iteration converges only the scattered light: on the example tree at 64^3 and
+tolerance 1e-5 that took 140 instead of 168 sweeps for the sun and 124
+instead of 168 for the 18 bases. The steady state solves ``(I - T) f = beta`` where T is one sweep with zero
 boundary inflow and beta holds the boundary densities in the inflow slots.
 ``solver="iterate"`` repeats sweeps until the relative residual
 ``||f_{t+1} - f_t|| / ||f_t||`` of every right-hand side is below the
@@ -150,6 +160,8 @@ _CX = np.ascontiguousarray(DIRECTIONS[1:, 0])
 _CY = np.ascontiguousarray(DIRECTIONS[1:, 1])
 _CZ = np.ascontiguousarray(DIRECTIONS[1:, 2])
 SOLVERS = ("auto", "iterate", "bicgstab", "extrapolate")
+#: Occupied runs (nz * K values) at least this long collide by BLAS gemm, shorter ones by a loop.
+_BLAS_MIN_RUN = 256
 
 
 class LatticeStabilityError(UsageError, ValueError):
@@ -315,6 +327,10 @@ class LBParams:
     """Plain iteration measures the residual every this many sweeps (measuring costs ~40% of a sweep)."""
     dtype: str = "float32"
     """Storage of the field: ``float32`` (default) or ``float64``."""
+    initial: str = "unscattered"
+    """Start from ``unscattered`` light (exact, one pass per direction: the iteration then only has to
+    converge the scattered part, and skips the sweeps the direct beam needs to cross the grid) or ``zero``
+    (the paper's start: only the boundary densities)."""
     keep_f: bool = False
     """Return the full directional field ``LBResult.f`` (memory: 19 x the energy density)."""
 
@@ -325,6 +341,8 @@ class LBParams:
             raise ValueError(f"max_sweeps must be >= 1, got {self.max_sweeps}")
         if self.solver not in SOLVERS:
             raise ValueError(f"solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
+        if self.initial not in ("unscattered", "zero"):
+            raise ValueError(f"initial must be 'unscattered' or 'zero', got {self.initial!r}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be float32 or float64, got {self.dtype!r}")
         if not (self.memory_limit > 0):
@@ -389,6 +407,8 @@ def _sweep(f, out, rho, mat, A, mode, wt, part1, part2):  # pragma: no cover - c
     L = nz * B
     for x in prange(nx):
         H = np.empty((nq, C, L), dtype=f.dtype)
+        buf = np.empty(nq * L, dtype=f.dtype)
+        prod = np.empty(nq * L, dtype=f.dtype)
         acc = np.empty((3, L), dtype=f.dtype)
         rexp = np.empty((nmat, L), dtype=f.dtype)
         has = np.zeros(nmat, dtype=np.bool_)
@@ -424,43 +444,76 @@ def _sweep(f, out, rho, mat, A, mode, wt, part1, part2):  # pragma: no cover - c
                             v = rr[z0 + zz] if mm[z0 + zz] == m else 0.0
                             for b in range(B):
                                 re[zz * B + b] = v
-                # three output directions per pass share each load of f_j (18 = 6 x 3)
-                a0 = acc[0, :n]
-                a1 = acc[1, :n]
-                a2 = acc[2, :n]
-                for c in range(C):
-                    for i in range(nq):
-                        h = H[i, c]
-                        fi = F[i, c]
-                        for l in range(L):
-                            h[l] = fi[l]
-                    for m in range(nmat):
-                        if not has[m]:
-                            continue
-                        re = rexp[m, l0 : l0 + n]
-                        for i in range(0, nq, 3):
+                if n >= _BLAS_MIN_RUN:
+                    # long runs: the collision is one small matrix product per channel and material,
+                    # (18 x 18) @ (18 x n), by BLAS gemm (2x the loop below per core: it keeps its
+                    # accumulators in registers) on a contiguous copy of the run
+                    Fb = buf[: nq * n].reshape((nq, n))
+                    Pb = prod[: nq * n].reshape((nq, n))
+                    for c in range(C):
+                        for i in range(nq):
+                            h = H[i, c]
+                            fi = F[i, c]
+                            for l in range(l0):
+                                h[l] = fi[l]
+                            for l in range(l0 + n, L):
+                                h[l] = fi[l]
+                            fb = Fb[i]
                             for l in range(n):
-                                a0[l] = 0.0
-                                a1[l] = 0.0
-                                a2[l] = 0.0
-                            for j in range(nq):
-                                c0 = A[m, c, i, j]
-                                c1 = A[m, c, i + 1, j]
-                                c2 = A[m, c, i + 2, j]
-                                fj = F[j, c, l0 : l0 + n]
-                                for l in range(n):
-                                    v = fj[l]
-                                    a0[l] += c0 * v
-                                    a1[l] += c1 * v
-                                    a2[l] += c2 * v
-                            h0 = H[i, c, l0 : l0 + n]
-                            h1 = H[i + 1, c, l0 : l0 + n]
-                            h2 = H[i + 2, c, l0 : l0 + n]
+                                fb[l] = fi[l0 + l]
+                        first = True
+                        for m in range(nmat):
+                            if not has[m]:
+                                continue
+                            re = rexp[m, l0 : l0 + n]
+                            np.dot(A[m, c], Fb, Pb)
                             # geist2008 eq. (2): f + rho * Omega f, f_0 removed (sec. 3)
-                            for l in range(n):
-                                h0[l] += re[l] * a0[l]
-                                h1[l] += re[l] * a1[l]
-                                h2[l] += re[l] * a2[l]
+                            for i in range(nq):
+                                h = H[i, c, l0 : l0 + n]
+                                pi = Pb[i]
+                                fb = Fb[i] if first else h
+                                for l in range(n):
+                                    h[l] = fb[l] + re[l] * pi[l]
+                            first = False
+                else:
+                    # short runs (a gemm call costs more): three output directions per pass share
+                    # each load of f_j (18 = 6 x 3)
+                    a0 = acc[0, :n]
+                    a1 = acc[1, :n]
+                    a2 = acc[2, :n]
+                    for c in range(C):
+                        for i in range(nq):
+                            h = H[i, c]
+                            fi = F[i, c]
+                            for l in range(L):
+                                h[l] = fi[l]
+                        for m in range(nmat):
+                            if not has[m]:
+                                continue
+                            re = rexp[m, l0 : l0 + n]
+                            for i in range(0, nq, 3):
+                                for l in range(n):
+                                    a0[l] = 0.0
+                                    a1[l] = 0.0
+                                    a2[l] = 0.0
+                                for j in range(nq):
+                                    c0 = A[m, c, i, j]
+                                    c1 = A[m, c, i + 1, j]
+                                    c2 = A[m, c, i + 2, j]
+                                    fj = F[j, c, l0 : l0 + n]
+                                    for l in range(n):
+                                        v = fj[l]
+                                        a0[l] += c0 * v
+                                        a1[l] += c1 * v
+                                        a2[l] += c2 * v
+                                h0 = H[i, c, l0 : l0 + n]
+                                h1 = H[i + 1, c, l0 : l0 + n]
+                                h2 = H[i + 2, c, l0 : l0 + n]
+                                # geist2008 eq. (2): f + rho * Omega f, f_0 removed (sec. 3)
+                                for l in range(n):
+                                    h0[l] += re[l] * a0[l]
+                                    h1[l] += re[l] * a1[l]
+                                    h2[l] += re[l] * a2[l]
                 src = H
             else:
                 src = F  # empty row: pass-through
@@ -706,6 +759,13 @@ class _Operator:
         self.set_inflow(f)
         return f
 
+    def unscattered(self, problem: LBProblem) -> np.ndarray:
+        """The never-scattered field in the kernel layout: f_q = b_q t_q (``unscattered_energy``), inflow slots = b."""
+        f = self.zeros()
+        for q, t in _transmittances(problem, self.bnd.any(axis=1), self.dtype):
+            f[:, :, q] = t.transpose(0, 1, 3, 2)[..., None] * self.bnd[q].astype(self.dtype)
+        return f
+
     def to_row(self, f19: np.ndarray) -> np.ndarray:
         """(nx, ny, nz, 19, K, C) -> the kernel layout (nx, ny, 18, C, nz, K) (f_0 dropped)."""
         return np.ascontiguousarray(np.asarray(f19)[..., 1:, :, :].transpose(0, 1, 3, 5, 2, 4), dtype=self.dtype)
@@ -895,7 +955,7 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
     nrhs = op.C * op.K
     tol = params.tolerance
     history: list[float] = []
-    f = op.initial()
+    f = op.unscattered(problem) if params.initial == "unscattered" else op.initial()
     sweeps = 0
     used: list[str] = []
     t_loop = time.perf_counter()
@@ -995,21 +1055,26 @@ def unscattered_energy(problem: LBProblem, dtype: str = "float32") -> np.ndarray
     u = sum_i b_i f_i for each boundary condition's inflow b.
     """
     nx, ny, nz = problem.shape
-    sig_t = np.array(problem.medium.sigma_t, dtype=np.float64)
-    att = 1.0 - problem.density[..., None] * sig_t  # per-step survival at green nodes
-    if problem.brown_mask is not None:
-        att[problem.brown_mask] = 1.0 - problem.density[problem.brown_mask][:, None] * np.array(problem.brown_medium.sigma_t)
-    att = np.ascontiguousarray(att, dtype=dtype)
     bnd = np.array([b.inflow for b in problem.boundaries], dtype=np.float64)  # (K, 18)
     energy = np.zeros((nx, ny, nz, len(problem.boundaries), problem.channels), dtype)
-    t = np.empty((nx, ny, nz, problem.channels), dtype)
-    for q in range(NQ):
-        if not bnd[:, q].any():
-            continue
-        _transmit(att, int(_CX[q]), int(_CY[q]), int(_CZ[q]), t)
+    for q, t in _transmittances(problem, bnd.any(axis=0), dtype):
         for k in np.nonzero(bnd[:, q])[0]:
             energy[..., k, :] += np.asarray(bnd[k, q], dtype) * t
     return energy
+
+
+def _transmittances(problem: LBProblem, wanted: np.ndarray, dtype):
+    """Yield (q, t_q) for the wanted directions q: t_q (nx, ny, nz, C) from ``_transmit`` (one buffer, reused)."""
+    sig_t = np.array(problem.medium.sigma_t, dtype=np.float64)
+    att = 1.0 - problem.density[..., None] * sig_t  # per-step survival 1 - rho sigma_t at green nodes
+    if problem.brown_mask is not None:
+        att[problem.brown_mask] = 1.0 - problem.density[problem.brown_mask][:, None] * np.array(problem.brown_medium.sigma_t)
+    att = np.ascontiguousarray(att, dtype=dtype)
+    t = np.empty(att.shape, dtype)
+    for q in range(NQ):
+        if wanted[q]:
+            _transmit(att, int(_CX[q]), int(_CY[q]), int(_CZ[q]), t)
+            yield q, t
 
 
 # --------------------------------------------------------------------------- reference update

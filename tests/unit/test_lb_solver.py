@@ -38,6 +38,7 @@ from foliage_tools.lighting.lb import (
     LatticeStabilityError,
     LBParams,
     LBProblem,
+    _BLAS_MIN_RUN,
     _balance,
     _Operator,
     _reference_step,
@@ -185,8 +186,15 @@ def _problem_random(rng, shape=(7, 6, 5)):
 
 
 @pytest.mark.parametrize("dtype, tol", [("float32", 1e-6), ("float64", 1e-13)])
-def test_fast_kernel_matches_reference_step(rng, dtype, tol):
-    pb = _problem_random(rng)
+@pytest.mark.parametrize("shape", [(7, 6, 5), (4, 3, 90)], ids=["short-runs-loop", "long-runs-gemm"])
+def test_fast_kernel_matches_reference_step(rng, dtype, tol, shape):
+    """Both collision paths of the kernel: rows whose occupied run (nz x 3 rhs) is short use the
+    hand loop, long ones BLAS gemm (``_BLAS_MIN_RUN``); two materials in both."""
+    pb = _problem_random(rng, shape)
+    occ = pb.density > 0
+    z = np.arange(shape[2])
+    runs = np.where(occ.any(-1), np.where(occ, z, -1).max(-1) - np.where(occ, z, shape[2]).min(-1) + 1, 0) * 3
+    assert (runs.max() >= _BLAS_MIN_RUN) == (shape[2] == 90)  # the path this case is meant to exercise
     op = _Operator(pb, dtype)
     f19 = rng.uniform(0, 1, pb.shape + (19, 3, 3))
     row = op.to_row(f19)
@@ -468,3 +476,17 @@ def test_ambient_base_is_the_sum_of_the_kronecker_bases():
     r = solve(LBProblem(rho, med, relighting_boundaries()), LBParams(dtype="float64", tolerance=1e-12))
     u = r.energy_density[..., 0]
     np.testing.assert_allclose(u[..., 0], u[..., 1:].sum(axis=-1), rtol=1e-9)
+
+
+def test_unscattered_start_reaches_the_same_steady_state_in_fewer_sweeps():
+    """Starting from the exact never-scattered field skips the sweeps the direct beam needs to cross."""
+    rho = sphere(24, 0.4, 0.4)
+    med = Medium(sigma_a=(0.1, 0.02), sigma_s=(0.8, 0.95), g=(0.3, 0.0))
+    pb = LBProblem(rho, med, (sun_boundary((0.3, 0.2, 0.9)), base_boundary(5)))
+    runs = {init: solve(pb, LBParams(tolerance=1e-9, dtype="float64", initial=init, solver="iterate")) for init in ("zero", "unscattered")}
+    a, b = runs["zero"].energy_density, runs["unscattered"].energy_density
+    assert runs["zero"].converged and runs["unscattered"].converged
+    np.testing.assert_allclose(b, a, rtol=0, atol=1e-6 * a.max())
+    assert runs["unscattered"].iterations < runs["zero"].iterations
+    with pytest.raises(ValueError, match="initial"):
+        LBParams(initial="ones")
