@@ -279,14 +279,27 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
 @click.option("--directions", type=click.IntRange(min=2), default=16, show_default=True, help="Sample directions for the G-factor and the sky (even; the paper used 16-22).")
 @click.option("--no-gfactor", is_flag=True, help="Plain SPP only: skip the sppg primvars (G is still written as a grid).")
 @click.option("--refine", is_flag=True, help="Integrate the refined radiance of shinya2013 appendix A.1 for the sun's scattered light.")
+@click.option("--depth", type=click.Choice(["rays", "grid"]), default="rays", show_default=True,
+              help="How each leaf's optical depth toward the sun and the sample directions is measured (shinya2013 eq. 29). "
+                   "rays: count the leaves crossed through the actual leaf triangles (Embree), own leaf skipped, averaged over "
+                   "--rays-per-leaf points on each leaf; sees the leaves' real orientations and clumping; costs "
+                   "rays-per-leaf x (2 x directions + 2) rays per leaf per instance (about 1 ms per leaf at the defaults: a generated "
+                   "50k-leaf tree took 56 s against 0.6 s for grid). "
+                   "grid: integrate the leaf-area density grid (own leaf's area taken out), assuming randomly oriented leaves; "
+                   "one grid march per leaf and direction, cheaper on very large trees. "
+                   "Measured against the Monte Carlo reference: rays lower the total-irradiance error "
+                   "(tree_small 0.22 vs 0.33, Webots oak 0.24 vs 0.41 rel. RMS) at 1.5-2.5x the bake time on those 1.5k-2k-leaf trees.")
+@click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True,
+              help="With --depth rays: origins per leaf, uniform over its area (seeded); more rays, less count noise (1/sqrt).")
 @bake_options
 @common_options
-def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, sun: str | None,
+def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, depth: str, rays_per_leaf: int, sun: str | None,
         leaf_optics: str | None, wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
     """Simplified plane-parallel scattering with the G-factor (shinya2013).
 
-    Integrates the leaf-area density toward the sun and N sample directions
-    (depth and thickness, eq. 29), computes the G-factor per cell and per-leaf
+    Measures each leaf's optical depth and thickness toward the sun and N
+    sample directions (eq. 29; --depth rays or grid), adding the leaves of
+    neighbouring instances in a forest (eq. 31), computes the G-factor per cell and per-leaf
     SPPG, SPP and single-scattering irradiance. Writes grids sppGFactor,
     sppDepth, sppThickness to OUT.vdb, primvars:foliage:sppIrradiance and
     :gFactor (vertex) and per-leaf primvars:foliage:{spp,sppg,ss}:{direct,scattered}.
@@ -305,10 +318,11 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, directions=directions, gfactor=not no_gfactor, refine=refine,
+            depth=depth, rays_per_leaf=rays_per_leaf,
         )
 
         def render(report) -> None:
-            table = Table(title=f"SPP in {report.seconds:.2f} s ({directions} directions)")
+            table = Table(title=f"SPP in {report.seconds:.2f} s ({directions} directions, {depth} depths)")
             for col in ("prototype", "leaves", "cells", "mean G", "mean E_scattered SPP (G)", "SPPG (G)"):
                 table.add_column(col, justify="left" if col == "prototype" else "right")
             for p in report.stats["prototypes"]:

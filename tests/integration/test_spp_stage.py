@@ -1,5 +1,6 @@
 """``foliage spp`` end to end: grids and primvars of DESIGN.md section 3."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,26 @@ def test_spp_writes_grids_and_primvars(tmp_path):
     assert np.all(sppg <= spp + 1e-6) and sppg.sum() < spp.sum()
     assert np.all(ss == 0)  # the paper's SS baseline: attenuated direct light only
     assert report.stats["directions"] == 16
+    # the report says which depth path ran (rays by default: the lower error against the reference)
+    assert report.stats["depth"] == "rays" and report.stats["rays_per_leaf"] == 16
+    assert report.stats["prototypes"][0]["instances"] == 1 and report.stats["prototypes"][0]["neighbours"] == 0
     assert foliage("validate", tmp_path / "s.usda").returncode == 0
+
+
+def test_grid_depth_path_is_a_flag_and_bad_values_are_usage_errors(tmp_path):
+    r = foliage("spp", EXAMPLE, "-o", tmp_path / "o.usda", "--depth", "grid", "--resolution", "8", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["stats"]["depth"] == "grid"
+    # every option has a config key (its long name)
+    (tmp_path / "c.toml").write_text('[spp]\ndepth = "rays"\nrays-per-leaf = 2\n')
+    r = foliage("spp", EXAMPLE, "-o", tmp_path / "o.usda", "--config", tmp_path / "c.toml", "--resolution", "8", "--json")
+    assert r.returncode == 0, r.stderr
+    stats = json.loads(r.stdout)["stats"]
+    assert (stats["depth"], stats["rays_per_leaf"]) == ("rays", 2)
+    r = foliage("spp", EXAMPLE, "-o", tmp_path / "o.usda", "--depth", "voxels")
+    assert r.returncode == 2 and "--depth" in r.stderr
+    r = foliage("spp", EXAMPLE, "-o", tmp_path / "o.usda", "--rays-per-leaf", "0")
+    assert r.returncode == 2 and "--rays-per-leaf" in r.stderr
 
 
 def test_sun_below_the_horizon_is_a_usage_error(tmp_path):

@@ -14,7 +14,7 @@ import pytest
 from foliage_tools.geometry.rays import RayScene
 from foliage_tools.geometry.voxelize import area_per_voxel, grid_for_bounds
 from foliage_tools.lighting import raydepth as rd
-from foliage_tools.lighting.depth import DepthSamples, optical_depth
+from foliage_tools.lighting.depth import DepthSamples, optical_depth, own_leaf_depth
 from foliage_tools.lighting.gfactor import sample_directions, solve_sppg
 from foliage_tools.lighting.optics import parse_leaf_optics
 
@@ -163,6 +163,10 @@ def test_counts_from_leaves_skip_the_own_leaf_that_the_grid_path_smears_in():
     counts = rd.crossing_counts(RayScene(tri), centres[inner], dirs, skip_ids=inner, id_of_triangle=ids).mean()
     assert abs(counts / at_random - 1.0) < 0.05
     assert at_leaves - at_random > 0.25
+    # the grid path with the own leaf taken out (lighting.depth.own_leaf_depth) is back on the counts' scale:
+    # measured counts / grid = 1.001 here
+    own = own_leaf_depth(grid, tri, ids, centres, dirs)[inner].mean()
+    assert abs(counts / (at_leaves - own) - 1.0) < 0.05
 
 
 def test_leaf_without_area_is_refused_when_sampling_origins_on_leaves():

@@ -20,5 +20,5 @@ def _runner(which: str):
 
 
 register("ss", "single scattering baseline (shinya2013 sec. 4.2: attenuated direct light only)")(_runner("ss"))
-register("spp", "simplified plane-parallel, grid depths (shinya2013 eqs. 17-22, re-derived)")(_runner("spp"))
+register("spp", "simplified plane-parallel, depths from ray crossings (shinya2013 eqs. 17-22, 29, re-derived)")(_runner("spp"))
 register("sppg", "SPP with the G-factor (shinya2013 eqs. 23-28, A.3, re-derived)")(_runner("sppg"))
