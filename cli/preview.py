@@ -18,8 +18,9 @@ METHOD_CHOICES = ["direct", "lb", "spp", "smax", "reference"]
 @click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path),
               help="Image to write: .png (tone-mapped, sRGB) or .exr (linear radiance + alpha). Sequences write OUT.0001.png ...")
 @click.option("--method", type=click.Choice(METHOD_CHOICES), default="direct", show_default=True,
-              help="Scattered light added to the direct term: direct (none), or the data a bake wrote into SCENE "
-                   "(lb, spp, smax, reference; run that command first).")
+              help="Scattered light added to the direct term: direct (none); lb, spp, reference: the data that bake wrote "
+                   "into SCENE; smax: Boulanger's one-bounce model evaluated per leaf in the vertex shader for the current "
+                   "sun, from the s_max and tau `foliage smax` wrote. Run that command first.")
 @click.option("--compare", "compare", metavar="M1,M2,...", default=None,
               help="Render several methods side by side in one labelled image, e.g. direct,lb,reference.")
 @click.option("--error-image", is_flag=True,
@@ -42,10 +43,15 @@ METHOD_CHOICES = ["direct", "lb", "spp", "smax", "reference"]
 @click.option("--shadow-size", type=int, default=2048, show_default=True, help="Shadow-map resolution (texels per side).")
 @click.option("--sky-samples", type=click.IntRange(0, 16), default=16, show_default=True,
               help="Sky directions tested for occlusion by the trees (0: unoccluded sky, faster).")
+@click.option("--lod", type=float, default=None, metavar="FRACTION",
+              help="Level of detail for large scenes, e.g. --lod 0.25: wood meshes are simplified to FRACTION of their "
+                   "triangles (quadric edge collapse); instances farther than 8 tree radii from the camera also keep their "
+                   "wood at FRACTION² and only FRACTION of their leaves, each enlarged so the leaf area stays the same "
+                   "(leaves are dropped whole, never decimated). Default: full detail.")
 @common_options
 def preview(scene: Path, out: Path, method: str, compare: str | None, error_image: bool, sun: str | None, size: str | None,
             camera: str | None, azimuth: float | None, elevation: float | None, distance: float | None, fov: float, ground: bool,
-            frames: int | None, orbit: bool, sun_sweep: bool, samples: str, shadow_size: int, sky_samples: int,
+            frames: int | None, orbit: bool, sun_sweep: bool, samples: str, shadow_size: int, sky_samples: int, lod: float | None,
             as_json: bool, quiet: bool, verbose: int) -> None:
     """Render SCENE with sun, sky and shadows (and baked scattered light) to an image.
 
@@ -60,6 +66,7 @@ def preview(scene: Path, out: Path, method: str, compare: str | None, error_imag
       foliage preview tree.usda -o tree.exr --sun 120,25 --size 1920x1080
       foliage preview baked.usda -o cmp.png --compare direct,lb,reference --error-image
       foliage preview forest.usda -o turn.png --orbit --frames 72 --size 512x512
+      foliage preview forest.usda -o far.png --lod 0.25
     """
     from foliage_tools.pipeline.preview import PreviewParams, parse_methods, parse_size, parse_sun, run_preview
 
@@ -83,6 +90,7 @@ def preview(scene: Path, out: Path, method: str, compare: str | None, error_imag
             samples=int(samples),
             shadow_size=shadow_size,
             sky_samples=sky_samples,
+            lod=lod,
         )
         with console.RichProgress(enabled=not (quiet or as_json)) as progress:
             report = run_preview(scene, out, params, progress=progress)

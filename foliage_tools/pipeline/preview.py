@@ -8,11 +8,13 @@ draws the same direct term (shadow-mapped sun, sky, ground bounce):
 | ``direct`` | none | -- |
 | ``lb`` | ``primvars:foliage:lb:scattered`` (uniform) or ``primvars:foliage:lbIndirect`` (vertex) | ``foliage lb`` |
 | ``spp`` | ``primvars:foliage:spp:scattered`` (uniform) or ``primvars:foliage:sppIrradiance`` (vertex) | ``foliage spp`` |
-| ``smax`` | ``primvars:foliage:smax:scattered`` (uniform); ``primvars:foliage:smax`` marks the bake | ``foliage smax`` |
+| ``smax`` | evaluated in the vertex shader (boulanger2008 Algorithms 8-14) from ``primvars:foliage:smax`` (uniform, elementSize 8) and the tree's ``foliage:tau``, for the current sun | ``foliage smax`` |
 | ``reference`` | ``primvars:foliage:ref:scattered`` (uniform) | ``foliage reference`` |
 
 Output (DESIGN.md section 3): ``.png`` is tone-mapped (Reinhard) and
-sRGB-encoded over the sky colour; ``.exr`` is linear radiance with alpha =
+sRGB-encoded over the sky colour, exposed for the light like an incident-light
+meter (an 18 % grey horizontal surface lit by the sun and sky is mid-grey; see
+:func:`choose_exposure`); ``.exr`` is linear radiance with alpha =
 coverage, premultiplied (no sky). A sequence (``frames``) writes
 ``IMG.0001.png`` ... all or none, with one exposure for all frames.
 """
@@ -31,9 +33,10 @@ from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.geometry.sun import DEFAULT_SUN, angles_from_direction, direction_from_angles, parse_sun  # noqa: F401  (parse_sun re-exported)
 from foliage_tools.preview.camera import Camera, camera_from_usd, orbit_camera, usd_camera_size
 from foliage_tools.preview.compare import false_colour, rel_rms, relative_error, side_by_side
+from foliage_tools.preview.lod import LodParams, apply_lod
 from foliage_tools.preview.optics import SurfaceOptics
 from foliage_tools.preview.renderer import MAX_SKY_SAMPLES, SAMPLES, DrawScene, Frame, Ground, Lighting, Renderer
-from foliage_tools.preview.tonemap import Exposure, luminance, measure_exposure, reinhard, srgb_encode
+from foliage_tools.preview.tonemap import REC709_LUMINANCE, Exposure, luminance, measure_exposure, photographic_exposure, reinhard, srgb_encode
 from foliage_tools.scene.model import MeshPart, Scene
 
 METHODS = ("direct", "lb", "spp", "smax", "reference")
@@ -59,7 +62,7 @@ class MethodData:
 METHOD_DATA = {
     "lb": MethodData("foliage:lbIndirect", ("foliage:lb:scattered", "foliage:lbIndirect"), "foliage lb"),
     "spp": MethodData("foliage:sppIrradiance", ("foliage:spp:scattered", "foliage:sppIrradiance"), "foliage spp"),
-    "smax": MethodData("foliage:smax", ("foliage:smax:scattered",), "foliage smax"),
+    "smax": MethodData("foliage:smax", ("foliage:smax",), "foliage smax"),
     "reference": MethodData("foliage:ref:scattered", ("foliage:ref:scattered",), "foliage reference"),
 }
 
@@ -129,6 +132,9 @@ class PreviewParams:
     """Shadow-map resolution, texels per side."""
     sky_samples: int = 16
     """Sky directions tested for occlusion by the trees (0: the sky reaches everything)."""
+    lod: float | None = None
+    """Level of detail (:mod:`foliage_tools.preview.lod`): keep this fraction of the wood triangles,
+    and of the leaves of far instances (area-compensated); None: full detail."""
     optics: SurfaceOptics = field(default_factory=SurfaceOptics)
 
     def __post_init__(self) -> None:
@@ -164,6 +170,8 @@ class PreviewParams:
             raise UsageError(f"--shadow-size must be between 256 and 8192 texels, got {self.shadow_size}.")
         if not (0 <= self.sky_samples <= MAX_SKY_SAMPLES):
             raise UsageError(f"--sky-samples must be between 0 and {MAX_SKY_SAMPLES}, got {self.sky_samples}.")
+        if self.lod is not None:
+            LodParams(self.lod)  # validates
 
     @property
     def methods(self) -> tuple[str, ...]:
@@ -225,7 +233,7 @@ def load_method_data(path: Path, scene: Scene, methods: tuple[str, ...], warning
     """
     from foliage_tools.scene.primvars import read_mesh_primvars
 
-    wanted = [m for m in methods if m != "direct"]
+    wanted = [m for m in methods if m not in ("direct", "smax")]
     if not wanted:
         return {}
     leaf_meshes = {m.path: m for p in scene.prototypes for m in p.meshes if m.is_leaf}
@@ -262,6 +270,57 @@ def load_method_data(path: Path, scene: Scene, methods: tuple[str, ...], warning
                 f"{path}: {len(missing)} leaf mesh(es) have no {method} data (e.g. <{missing[0]}>); their scattered light is drawn as 0."
             )
         out[method] = per_mesh
+    return out
+
+
+def load_smax_data(path: Path, scene: Scene) -> dict[str, tuple[float, dict[str, np.ndarray]]]:
+    """``{prototype path: (τ, {leaf mesh path: (3T, 8) s_max per triangle corner})}`` written by ``foliage smax``.
+
+    The ``smax`` method evaluates Boulanger's model in the vertex shader from these
+    (boulanger2008 sec. 5.6), so it follows the preview's sun. Raises
+    :class:`InputError` naming ``foliage smax`` when no leaf mesh has
+    ``primvars:foliage:smax`` or a baked tree has no ``foliage:tau``.
+    """
+    from foliage_tools.scene.primvars import read_mesh_primvars
+    from foliage_tools.scene.read import open_stage
+
+    spec = METHOD_DATA["smax"]
+    rerun = f"Run `{spec.command} {path} -o OUT.usda` and preview OUT.usda (or use --method direct)."
+    leaf_meshes = {m.path: (k, m) for k, p in enumerate(scene.prototypes) for m in p.meshes if m.is_leaf}
+    if not leaf_meshes:
+        raise InputError(f"@{path}@ has no leaf meshes, so it holds no smax data to preview.")
+    found = read_mesh_primvars(path, [spec.required], list(leaf_meshes))[spec.required]
+    if not found:
+        raise InputError(f"@{path}@ has no smax data: no leaf mesh has primvars:{spec.required}. {rerun}")
+    stage = open_stage(path)
+    out: dict[str, tuple[float, dict[str, np.ndarray]]] = {}
+    for mesh_path, pv in found.items():
+        k, mesh = leaf_meshes[mesh_path]
+        proto = scene.prototypes[k]
+        where = f"@{path}@ <{mesh_path}> primvars:{spec.required}"
+        v = np.asarray(pv.values, dtype=np.float64)
+        if v.ndim != 2 or v.shape[1] != 8:
+            raise InputError(f"{where}: expected 8 values per element (elementSize 8, one per direction of eq. (5.28)), "
+                             f"got {v.shape[1] if v.ndim == 2 else 1}; re-run `{spec.command}`.")
+        expected = {"uniform": mesh.face_count, "vertex": len(mesh.points), "varying": len(mesh.points)}
+        if pv.interpolation not in expected or len(v) != expected[pv.interpolation]:
+            raise InputError(f"{where}: {len(v)} {pv.interpolation} values, the mesh needs {mesh.face_count} uniform ones; "
+                             f"re-run `{spec.command}`.")
+        if not np.all(np.isfinite(v)) or np.any(v < 0):
+            raise InputError(f"{where}: holds negative, NaN or infinite distances; re-run `{spec.command}`.")
+        if pv.interpolation == "uniform":
+            corners = np.repeat(v[mesh.face_of_triangle], 3, axis=0)
+        else:
+            corners = v[mesh.triangles].reshape(-1, 8)
+        if proto.path not in out:
+            prim = stage.GetPrimAtPath(proto.path)
+            attr = prim.GetAttribute("foliage:tau") if prim else None
+            tau = attr.Get() if attr else None
+            if tau is None or not (math.isfinite(float(tau)) and float(tau) >= 0):
+                raise InputError(f"@{path}@: <{proto.path}> has s_max on its leaves but no valid foliage:tau "
+                                 f"(got {tau!r}); the smax bake writes both. {rerun}")
+            out[proto.path] = (float(tau), {})
+        out[proto.path][1][mesh_path] = corners.astype(np.float32)
     return out
 
 
@@ -319,6 +378,30 @@ def _over_sky(frame: Frame) -> np.ndarray:
     return frame.radiance + (1.0 - frame.alpha)[..., None] * np.asarray(frame.sky, np.float32)
 
 
+def horizontal_illuminance(lighting: Lighting, up: np.ndarray) -> float:
+    """Luminance-weighted irradiance of an unshadowed horizontal surface: E_sun max(ω_sun·up, 0) + π L_sky."""
+    sun = np.asarray(lighting.sun_direction, dtype=np.float64)
+    cos = max(float(sun @ np.asarray(up, dtype=np.float64)) / float(np.linalg.norm(sun)), 0.0)
+    sun_lum = float(np.asarray(lighting.sun_irradiance) @ REC709_LUMINANCE)
+    sky_lum = float(np.asarray(lighting.sky_radiance) @ REC709_LUMINANCE)
+    return sun_lum * cos + math.pi * sky_lum
+
+
+def choose_exposure(frame: Frame, lighting: Lighting, up: np.ndarray) -> tuple[Exposure, str]:
+    """The PNG exposure: metered from the light (:func:`photographic_exposure`), else keyed on the whole picture.
+
+    Returns (exposure, ``"photographic"`` or ``"frame"``). The picture is the
+    fallback only when neither sun nor sky lights a horizontal surface (sun
+    below the horizon and a black sky); it is then keyed on every pixel over
+    the sky, not on the tree alone.
+    """
+    picture = _over_sky(frame)
+    exposure = photographic_exposure(horizontal_illuminance(lighting, up), white_rgb=picture)
+    if exposure is not None:
+        return exposure, "photographic"
+    return measure_exposure(picture, white_rgb=picture), "frame"
+
+
 def _display(frame: Frame, exposure: Exposure) -> np.ndarray:
     """Tone-mapped, display-linear RGB over the sky."""
     return reinhard(_over_sky(frame), exposure)
@@ -374,7 +457,16 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
         raise InputError(f"@{path}@ has no mesh geometry to preview; is it a tree asset?")
     methods = params.methods
     data = load_method_data(Path(path), scene, methods, report.warnings)
-    draw = DrawScene.from_scene(scene, data)
+    smax = load_smax_data(Path(path), scene) if "smax" in methods else None
+    if smax is not None:
+        unbaked = [m.path for p in scene.prototypes if p.path not in smax for m in p.meshes if m.is_leaf]
+        partial = [m.path for p in scene.prototypes if p.path in smax for m in p.meshes if m.is_leaf and m.path not in smax[p.path][1]]
+        if unbaked or partial:
+            report.warnings.append(
+                f"{path}: {len(unbaked) + len(partial)} leaf mesh(es) have no s_max (e.g. <{(unbaked + partial)[0]}>); "
+                "the smax method draws their tree without scattered light."
+            )
+    draw = DrawScene.from_scene(scene, data, smax)
     bounds = draw.bounds()
     up = scene.up
     ground = Ground.under(bounds, up) if params.ground else None
@@ -413,6 +505,10 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
         az = light.azimuth + 360.0 * i / params.frame_count
         return Lighting(direction_from_angles(az, light.elevation, scene.up_axis), light.lighting.sun_irradiance, light.lighting.sky_radiance)
 
+    full_triangles = draw.triangle_count
+    if params.lod is not None:
+        # the split between near and far instances is made for the first frame's camera
+        draw = apply_lod(draw, camera_for(0).position, LodParams(params.lod))
     comparison = bool(params.compare) or params.error_image
     frame_seconds: list[float] = []
     method_stats: dict[str, dict] = {}
@@ -427,7 +523,7 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
                 frame_seconds.append(frames[m].seconds)
             if exposure is None:
                 _, f0 = _exposure_source(frames)
-                exposure = measure_exposure(f0.radiance, f0.tree if f0.tree.max() > 0.5 else f0.alpha, white_rgb=_over_sky(f0))
+                exposure, exposure_mode = choose_exposure(f0, lighting, up)
             if i == 0:
                 method_stats = _method_stats(frames)
             write(target, compose(frames, exposure, fmt, error_image=params.error_image, comparison=comparison))
@@ -445,6 +541,7 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
         "sky_samples": params.sky_samples,
         "renderer": renderer_name,
         "triangles": draw.triangle_count,
+        "lod": None if params.lod is None else {"fraction": params.lod, "triangles_full_detail": full_triangles},
         "instances": draw.instance_count,
         "bounds": bounds.tolist(),
         "camera": {"source": params.camera or "orbit", "azimuth": None if usd_cam else cam_az, "elevation": None if usd_cam else cam_el,
@@ -453,7 +550,7 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
                 "source": light.source, "sweep": params.sun_sweep},
         "sky": {"radiance": list(light.lighting.sky_radiance), "source": light.sky_source},
         "ground": params.ground,
-        "exposure": {"log_average": exposure.log_average, "white": exposure.white, "key": exposure.key},
+        "exposure": {"log_average": exposure.log_average, "white": exposure.white, "key": exposure.key, "mode": exposure_mode},
         "seconds_per_render": float(np.median(frame_seconds)),
         "per_method": method_stats,
     }

@@ -24,7 +24,11 @@ prototype and material, and one buffer of per-instance matrices, so a forest
 costs one instanced draw call per prototype and material.
 
 Shading is in ``shaders/*.glsl`` (equations cited there); the optics come
-from :mod:`foliage_tools.preview.optics`. This module knows nothing of USD or
+from :mod:`foliage_tools.preview.optics`. Baked methods bring E_scattered per
+vertex; the ``smax`` method brings s_max per vertex and τ per prototype, and
+``shaders/boulanger.glsl`` evaluates Boulanger's model for the current sun in
+the vertex shader (:meth:`Renderer.smax_irradiance` reads every term of it
+back by transform feedback). This module knows nothing of USD or
 files.
 """
 
@@ -67,10 +71,18 @@ class DrawMesh:
     """Leaves (two-sided, translucent) or wood (opaque)."""
     indirect: Mapping[str, np.ndarray] = field(default_factory=dict)
     """Per method name: (3T, 3) float32 scattered irradiance E_scattered at each corner (leaves only)."""
+    smax: np.ndarray | None = None
+    """(3T, 8) float32 s_max(P, ω_j) of each corner's leaf (boulanger2008 eq. (5.28) order), stage
+    units: the ``smax`` method evaluates Boulanger's model from it in the vertex shader."""
 
     def __post_init__(self) -> None:
         if self.corners.ndim != 2 or self.corners.shape[1] != 3 or self.corners.shape[0] % 3:
             raise ValueError(f"corners must be (3T, 3), got {self.corners.shape}")
+        if self.smax is not None:
+            if self.smax.shape != (self.corners.shape[0], 8):
+                raise ValueError(f"smax has shape {self.smax.shape}, expected ({self.corners.shape[0]}, 8)")
+            if not np.all(np.isfinite(self.smax)) or np.any(self.smax < 0):
+                raise ValueError("smax must be finite and >= 0")
         for name, values in self.indirect.items():
             if values.shape != self.corners.shape:
                 raise ValueError(f"indirect term {name!r} has shape {values.shape}, corners {self.corners.shape}")
@@ -85,6 +97,21 @@ class DrawPrototype:
     meshes: tuple[DrawMesh, ...]
     transforms: np.ndarray
     """(N, 4, 4) float64 world-from-prototype matrices (column-vector convention), one per instance."""
+    tau: float | None = None
+    """Optical thickness τ of the tree (``foliage:tau``), 1/stage unit; needed with ``DrawMesh.smax``."""
+    smax_up: np.ndarray | None = None
+    """(3,) the up axis in the prototype's frame that s_max was computed with (it orients the ω_j of
+    eq. (5.28)); default: the stage's up axis as seen by the first instance."""
+
+    def sample_directions(self, up: np.ndarray) -> np.ndarray:
+        """(8, 3) boulanger2008 eq. (5.28) directions in the prototype's frame, as ``foliage smax`` used them."""
+        from foliage_tools.geometry.sun import to_prototype_space
+        from foliage_tools.lighting.envelope import sample_directions
+
+        local_up = self.smax_up
+        if local_up is None:
+            local_up = to_prototype_space(np.asarray(up, dtype=np.float64), self.transforms[0]) if len(self.transforms) else up
+        return sample_directions(np.asarray(local_up, dtype=np.float64))
 
     def world_bounds(self) -> np.ndarray | None:
         pts = [m.corners for m in self.meshes if len(m.corners)]
@@ -116,7 +143,10 @@ class DrawScene:
 
     @property
     def methods(self) -> set[str]:
-        return {k for p in self.prototypes for m in p.meshes for k in m.indirect}
+        names = {k for p in self.prototypes for m in p.meshes for k in m.indirect}
+        if any(m.smax is not None and p.tau is not None for p in self.prototypes for m in p.meshes):
+            names.add("smax")
+        return names
 
     def bounds(self) -> np.ndarray:
         """(2, 3) world-space box around all instances (of each prototype's box corners)."""
@@ -127,13 +157,22 @@ class DrawScene:
         return np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
 
     @classmethod
-    def from_scene(cls, scene: Scene, indirect: Mapping[str, Mapping[str, np.ndarray]] | None = None) -> DrawScene:
+    def from_scene(
+        cls,
+        scene: Scene,
+        indirect: Mapping[str, Mapping[str, np.ndarray]] | None = None,
+        smax: Mapping[str, tuple[float, Mapping[str, np.ndarray]]] | None = None,
+    ) -> DrawScene:
         """Merge each prototype's meshes into one leaf and one wood :class:`DrawMesh`.
 
         ``indirect`` maps a method name to ``{mesh prim path: (T, 3, 3) or (3T, 3)
         E_scattered per triangle corner}``; leaf meshes a method does not cover get 0.
+        ``smax`` maps a prototype path to ``(τ, {leaf mesh path: (3T, 8) s_max per corner})``;
+        a prototype's leaves are drawn with the ``smax`` method only when all its leaf
+        meshes have s_max.
         """
         indirect = indirect or {}
+        smax = smax or {}
         protos = []
         for k, proto in enumerate(scene.prototypes):
             transforms = np.array([inst.transform for inst in scene.instances if inst.prototype == k], dtype=np.float64).reshape(-1, 4, 4)
@@ -157,8 +196,13 @@ class DrawScene:
                             for m in parts
                         ]
                     )
-                meshes.append(DrawMesh(corners=corners, leaf=leaf, indirect=terms))
-            protos.append(DrawPrototype(meshes=tuple(meshes), transforms=transforms))
+                baked = smax.get(proto.path)
+                corner_smax = None
+                if leaf and baked is not None and all(m.path in baked[1] for m in parts):
+                    corner_smax = np.concatenate([np.asarray(baked[1][m.path], dtype=np.float32).reshape(-1, 8) for m in parts])
+                meshes.append(DrawMesh(corners=corners, leaf=leaf, indirect=terms, smax=corner_smax))
+            tau = smax[proto.path][0] if proto.path in smax else None
+            protos.append(DrawPrototype(meshes=tuple(meshes), transforms=transforms, tau=tau))
         return cls(prototypes=tuple(protos), up=scene.up)
 
 
@@ -363,6 +407,11 @@ class _Draw:
     instance_count: int
     indirect: dict[str, object]
     triangle_count: int = 0
+    smax: object = None
+    """(3T, 8) float32 buffer of s_max per vertex (the ``smax`` method), or None."""
+    tau: float = 0.0
+    omega: np.ndarray | None = None
+    """(8, 3) eq. (5.28) directions in the prototype's frame."""
     sky_cache: object = None
     """RG float texture: sky visibility (front, back) per vertex and instance, written once by the sky pass."""
     sky_cache_width: int = 1
@@ -418,8 +467,12 @@ class Renderer:
         self._sky_done = False
 
     # -- resources --------------------------------------------------------------
-    def _program(self, kind: str, indirect: bool = False):
-        """``shadow`` (depth only), ``skycache`` (transform feedback), or the surfaces ``leaf``, ``wood``, ``ground``."""
+    def _program(self, kind: str, indirect: bool | str = False):
+        """``shadow`` (depth only), ``skycache``/``smaxfeedback`` (transform feedback), or the surfaces ``leaf``, ``wood``, ``ground``.
+
+        ``indirect``: False, True (a baked E_scattered per vertex) or ``"smax"`` (Boulanger's
+        model evaluated in the vertex shader from s_max per vertex).
+        """
         key = (kind, indirect)
         if key not in self._programs:
             version = "#version 330 core\n"
@@ -429,11 +482,16 @@ class Renderer:
             elif kind == "skycache":
                 vert = version + _shader("sky.glsl") + _shader("sky_cache.vert.glsl")
                 self._programs[key] = self.ctx.program(vertex_shader=vert, varyings=["o_sky"])
+            elif kind == "smaxfeedback":
+                vert = version + _shader("boulanger.glsl") + _shader("smax_feedback.vert.glsl")
+                varyings = ["o_direct", "o_scattered_front", "o_scattered_back", "o_sky_front", "o_sky_back"]
+                self._programs[key] = self.ctx.program(vertex_shader=vert, varyings=varyings)
             else:
-                defines = version + ("#define HAS_INDIRECT\n" if indirect else "")
+                defines = version + ("#define HAS_INDIRECT\n" if indirect else "") + ("#define SMAX_MODEL\n" if indirect == "smax" else "")
+                model = _shader("boulanger.glsl") if indirect == "smax" else ""
                 # the trees read their sky visibility from the per-scene cache; the ground computes its own
                 cached = "#define SKY_CACHED\n" if kind != "ground" and self.sky_samples else ""
-                vert = defines + cached + _shader("sky.glsl") + _shader("scene.vert.glsl")
+                vert = defines + cached + _shader("sky.glsl") + model + _shader("scene.vert.glsl")
                 frag = defines + f"#define {kind.upper()}\n" + _shader("lighting.glsl") + _shader("surface.frag.glsl")
                 self._programs[key] = self.ctx.program(vertex_shader=vert, fragment_shader=frag)
         return self._programs[key]
@@ -460,6 +518,9 @@ class Renderer:
                         instance_count=len(proto.transforms),
                         indirect={name: self._buffer(values) for name, values in mesh.indirect.items()},
                         triangle_count=mesh.triangle_count,
+                        smax=self._buffer(mesh.smax) if mesh.smax is not None and proto.tau is not None else None,
+                        tau=float(proto.tau or 0.0),
+                        omega=proto.sample_directions(np.asarray(self.scene.up, dtype=np.float64)) if mesh.smax is not None else None,
                     )
                 )
         self._ground_inst = self._buffer(_instance_data(np.eye(4)[None]))
@@ -474,7 +535,9 @@ class Renderer:
             content = [(draw.positions, "3f", "in_position"), (draw.instances, *INSTANCE_LAYOUT)]
             if program_key[0] != "shadow":
                 content.append((draw.normals, "3f", "in_normal"))
-            if indirect_name is not None:
+            if indirect_name == "smax":
+                content.append((draw.smax, "4f 4f", "in_smax0", "in_smax1"))
+            elif indirect_name is not None:
                 content.append((draw.indirect[indirect_name], "3f", "in_indirect"))
             self._vaos[key] = self.ctx.vertex_array(prog, content, skip_errors=True)
         return self._vaos[key]
@@ -633,6 +696,73 @@ class Renderer:
             out.release()
             draw.sky_cache, draw.sky_cache_width = tex, width
 
+    # -- Boulanger's model (the smax method) ---------------------------------------------
+    def _smax_uniforms(self, prog, draw: _Draw, optics: SurfaceOptics) -> None:
+        """Per-tree constants of boulanger.glsl: τ, the ω_j in the prototype's frame, ρ_r and ρ_t (eq. (5.19))."""
+        leaf = optics.leaf
+        rho_r = np.asarray(leaf.reflectance_front, dtype=np.float64) + np.asarray(leaf.reflectance_back, dtype=np.float64)
+        rho_t = np.asarray(leaf.transmittance_front, dtype=np.float64) + np.asarray(leaf.transmittance_back, dtype=np.float64)
+        prog["u_omega"].write(np.ascontiguousarray(draw.omega, dtype=np.float32).tobytes())
+        prog["u_tau"].value = draw.tau
+        prog["u_sm_rho_r"].value = tuple(rho_r)
+        prog["u_sm_rho_t"].value = tuple(rho_t)
+
+    def smax_irradiance(self, lighting: Lighting, optics: SurfaceOptics | None = None) -> list[dict[str, np.ndarray]]:
+        """Boulanger's per-leaf irradiance as the vertex shader computes it, read back by transform feedback.
+
+        One dict per leaf draw that has s_max: ``key`` (prototype, mesh index) and, per
+        vertex of every instance (instance-major, (N·3T,) or (N·3T, 3) float32), the unit-sun
+        ``direct_front``/``direct_back`` (eq. (5.8)), ``scattered_front``/``scattered_back``
+        (eqs. (5.11), (5.24)) and the sky and ground ``sky_front``/``sky_back`` (eq. (5.6)
+        with eq. (5.29) for ``lighting.sky_radiance`` and the optics' ground reflectance).
+        The main pass adds ``scattered_*`` times the sun's irradiance to the leaves.
+        """
+        from foliage_tools.lighting.boulanger import sky_radiance_per_direction
+
+        optics = optics or SurfaceOptics()
+        prog = self._program("smaxfeedback")
+        sun = np.asarray(lighting.sun_direction, dtype=np.float64)
+        prog["u_sun_dir"].value = tuple(sun / np.linalg.norm(sun))
+        # a complete framebuffer must be bound even though transform feedback rasterises nothing
+        # (the headless context's default framebuffer is not)
+        self._shadow_fbo.use()
+        out = []
+        for draw in self._draws:
+            if draw.smax is None:
+                continue
+            self._smax_uniforms(prog, draw, optics)
+            local_up = -draw.omega[0] - draw.omega[1] - draw.omega[2] - draw.omega[3]  # ω_4..ω_7 lie above the horizon (eq. (5.28))
+            sky = sky_radiance_per_direction(lighting.sky_radiance, optics.ground_reflectance, draw.omega, local_up)
+            prog["u_smax_sky"].write(np.ascontiguousarray(sky, dtype=np.float32).tobytes())
+            vertices = 3 * draw.triangle_count
+            count = vertices * draw.instance_count
+            floats = 2 + 4 * 3
+            buf = self.ctx.buffer(reserve=count * floats * 4)
+            vao = self.ctx.vertex_array(
+                prog,
+                [(draw.normals, "3f", "in_normal"), (draw.smax, "4f 4f", "in_smax0", "in_smax1"), (draw.instances, *INSTANCE_LAYOUT)],
+                skip_errors=True,
+            )
+            vao.transform(buf, mode=self.ctx.POINTS, vertices=vertices, instances=draw.instance_count)
+            raw = np.frombuffer(buf.read(), np.float32).reshape(count, floats)
+            vao.release()
+            buf.release()
+            out.append(
+                {
+                    "key": draw.key,
+                    "direct_front": raw[:, 0].copy(),
+                    "direct_back": raw[:, 1].copy(),
+                    "scattered_front": raw[:, 2:5].copy(),
+                    "scattered_back": raw[:, 5:8].copy(),
+                    "sky_front": raw[:, 8:11].copy(),
+                    "sky_back": raw[:, 11:14].copy(),
+                }
+            )
+        err = self.ctx.error
+        if err != "GL_NO_ERROR":
+            raise RuntimeError(f"OpenGL error while evaluating the smax model: {err}")
+        return out
+
     # -- main pass ------------------------------------------------------------------
     def render(
         self,
@@ -724,10 +854,15 @@ class Renderer:
 
         for draw in self._draws:
             kind = "leaf" if draw.leaf else "wood"
-            name = method if (method is not None and method in draw.indirect) else None
-            key = (kind, name is not None)
+            if method == "smax" and draw.smax is not None:
+                name, key = "smax", (kind, "smax")
+            else:
+                name = method if (method is not None and method in draw.indirect) else None
+                key = (kind, name is not None)
             prog = self._program(*key)
             setup(prog, kind)
+            if name == "smax":
+                self._smax_uniforms(prog, draw, optics)
             if draw.sky_cache is not None:
                 draw.sky_cache.use(location=2)
                 prog["u_sky_cache_width"].value = draw.sky_cache_width

@@ -85,6 +85,42 @@ def measure_exposure(
     return Exposure(log_average=log_average, white=max(white, 1e-6), key=key)
 
 
+def photographic_exposure(
+    illuminance: float,
+    *,
+    white_rgb: np.ndarray | None = None,
+    key: float = 0.18,
+    white_percentile: float = 99.5,
+) -> Exposure | None:
+    """A fixed exposure set by the light, not by the picture: mid-grey is the key.
+
+    ``illuminance`` is the luminance-weighted irradiance E of a horizontal surface
+    (sun and sky). A horizontal Lambertian surface of reflectance ``key`` (18 %
+    grey) then has radiance L_mid = key E / π, and L̄ = L_mid maps it to the key a
+    in Reinhard eq. (2), like an incident-light meter: the exposure does not
+    depend on what is in the frame, so a dark crown over a bright ground keeps
+    both their brightness (keying on the tree exposed the crown at mid-grey
+    and burnt the ground and sky out to white), methods and frames compare as
+    they are, and a sun sweep darkens as the sun sets.
+
+    L_white (eq. 4) is the ``white_percentile`` of ``white_rgb``'s scaled
+    luminance, but at least 1, the scaled luminance of a white (ρ = 1)
+    horizontal surface (E/π times a/L̄ = π/E): only what is brighter than white
+    paper in full light burns out. Returns None when ``illuminance`` is not positive (no light to
+    meter: the caller measures the picture instead).
+    """
+    if not (math.isfinite(illuminance) and illuminance > 0.0):
+        return None
+    log_average = key * illuminance / math.pi
+    white = 1.0
+    if white_rgb is not None:
+        wl = luminance(white_rgb).ravel()
+        wl = wl[np.isfinite(wl)]
+        if wl.size:
+            white = max(white, float(np.percentile(wl, white_percentile)) * key / log_average)
+    return Exposure(log_average=log_average, white=white, key=key)
+
+
 def reinhard(rgb: np.ndarray, exposure: Exposure) -> np.ndarray:
     """Tone-map linear RGB (H, W, 3) to display-linear RGB in [0, 1] (float32).
 

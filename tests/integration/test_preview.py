@@ -362,6 +362,44 @@ def test_per_face_reference_scattered_light_adds_its_closed_form(tmp_path):
     np.testing.assert_allclose(f.radiance[16, 16], expected, rtol=1e-5)
 
 
+def test_smax_method_evaluates_the_baked_envelope_like_the_bake(tmp_path):
+    # `foliage smax` stores s_max, tau and its own per-leaf E_direct / E_scattered for its sun;
+    # the previewer's vertex shader, given the same s_max, tau, sun and leaf optics, must
+    # reproduce those per-leaf values (float32 GPU vs float64 bake) -- and follows any other sun
+    from pxr import Usd, UsdGeom
+
+    from foliage_tools.lighting.optics import parse_leaf_optics
+    from foliage_tools.pipeline.preview import load_smax_data
+    from foliage_tools.pipeline.smax import SmaxParams, run_smax
+
+    src = crown_stage(tmp_path / "crown.usda", n=200)
+    baked = tmp_path / "baked.usda"
+    bake_optics = parse_leaf_optics(None)
+    run_smax(src, baked, SmaxParams(optics=bake_optics, sun=(45.0, 60.0)))
+    scene, _ = read_scene(baked)
+    draw = DrawScene.from_scene(scene, None, load_smax_data(baked, scene))
+    assert draw.methods == {"smax"}
+    r_, t_ = tuple(bake_optics.reflectance), tuple(bake_optics.transmittance)
+    optics = SurfaceOptics(leaf=LeafOptics(reflectance_front=r_, reflectance_back=r_, transmittance_front=t_, transmittance_back=t_))
+    with Renderer(draw, sky_samples=0) as r:
+        (terms,) = r.smax_irradiance(Lighting(direction_from_angles(45.0, 60.0, "Z")), optics)
+        (other,) = r.smax_irradiance(Lighting(direction_from_angles(200.0, 30.0, "Z")), optics)
+    leaves = next(m for m in scene.prototypes[0].meshes if m.is_leaf)
+    stage = Usd.Stage.Open(str(baked))
+    pv = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath(leaves.path))
+    want_scattered = np.asarray(pv.GetPrimvar("foliage:smax:scattered").Get())[leaves.face_of_triangle]
+    want_direct = np.asarray(pv.GetPrimvar("foliage:smax:direct").Get())[leaves.face_of_triangle][:, 0]
+    got_scattered = (terms["scattered_front"] + terms["scattered_back"])[::3]  # first corner of each triangle
+    got_direct = (terms["direct_front"] + terms["direct_back"])[::3]
+    assert want_scattered.max() > 0 and want_direct.max() > 0
+    np.testing.assert_allclose(got_scattered, want_scattered, rtol=1e-3, atol=1e-5 * want_scattered.max())
+    np.testing.assert_allclose(got_direct, want_direct, rtol=1e-3, atol=1e-5)
+    assert np.abs((other["scattered_front"] + other["scattered_back"])[::3] - got_scattered).max() > 0.05 * want_scattered.max()
+    # and the command renders it
+    report = run_preview(baked, tmp_path / "smax.png", PreviewParams(method="smax", size=(48, 48), samples=1, sky_samples=0))
+    assert (tmp_path / "smax.png").exists() and report.stats["per_method"]["smax"]["mean_tree_luminance"] > 0
+
+
 @pytest.mark.parametrize("method, command", [("lb", "foliage lb"), ("spp", "foliage spp"), ("smax", "foliage smax"), ("reference", "foliage reference")])
 def test_missing_bake_data_names_the_command_that_makes_it(tmp_path, method, command):
     path = crown_stage(tmp_path / "crown.usda", n=20)
@@ -455,6 +493,8 @@ def cli(*args):
         (["--frames", "3"], "--frames needs --orbit"),
         (["--compare", "direct,foo"], "unknown method(s) foo"),
         (["--camera", "/Cam", "--azimuth", "10"], "--camera cannot be combined with --azimuth"),
+        (["--lod", "0"], "--lod must be a fraction in (0, 1]"),
+        (["--lod", "2"], "--lod must be a fraction in (0, 1]"),
     ],
 )
 def test_bad_options_exit_2_with_a_message(tmp_path, args, message):
@@ -478,6 +518,34 @@ def test_bad_output_paths_exit_2_and_write_nothing(tmp_path):
     r = cli(path, "-o", tmp_path / "nodir" / "out.png", "--size", "16x16")
     assert r.exit_code == 2 and "does not exist" in r.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["crown.usda"]
+
+
+def test_png_exposure_leaves_ground_and_sky_in_the_midtones(tmp_path):
+    # the exposure is metered from the sun and sky, not keyed on the (dark) crown: the ground in
+    # front of the tree and the sky above it stay mid-tones instead of burning out to near white
+    # (keying on the tree gave them 0.84 and 0.86 in sRGB), and the crown is darker than the ground
+    path = crown_stage(tmp_path / "crown.usda")
+    report = run_preview(path, tmp_path / "a.png", PreviewParams(size=(128, 128), samples=1))
+    img = read_image(tmp_path / "a.png")
+    ground, sky, crown = img[-12:].mean(), img[:8].mean(), img[40:90, 54:74].mean()
+    assert report.stats["exposure"]["mode"] == "photographic"
+    assert 0.25 < ground < 0.6 and 0.25 < sky < 0.6, (ground, sky)
+    assert 0.1 < crown < ground
+
+
+def test_lod_via_cli_draws_fewer_triangles_and_help_teaches_it(tmp_path):
+    import json
+
+    help_text = cli("--help").output
+    assert "--lod FRACTION" in help_text and "leaf area" in " ".join(help_text.split())
+    path = REPO / "examples" / "forest_small.usda"  # 16 instances of examples/tree_small.usda
+    out = {}
+    for args in ((), ("--lod", "0.25")):
+        r = cli(path, "-o", tmp_path / f"f{len(args)}.exr", "--size", "48x48", "--samples", "1", "--sky-samples", "0", "--json", *args)
+        assert r.exit_code == 0, r.output
+        out[len(args)] = json.loads(r.output)["stats"]
+    assert out[2]["lod"] == {"fraction": 0.25, "triangles_full_detail": out[0]["triangles"]}
+    assert out[2]["triangles"] < out[0]["triangles"]
 
 
 def test_png_and_exr_outputs(tmp_path):

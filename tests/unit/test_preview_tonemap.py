@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from foliage_tools.preview.compare import false_colour, rel_rms, relative_error, side_by_side
-from foliage_tools.preview.tonemap import Exposure, luminance, measure_exposure, reinhard, srgb_decode, srgb_encode
+from foliage_tools.preview.tonemap import Exposure, luminance, measure_exposure, photographic_exposure, reinhard, srgb_decode, srgb_encode
 
 
 def grey(values) -> np.ndarray:
@@ -65,6 +65,26 @@ def test_white_from_the_surroundings_keeps_them_from_burning_out():
     out = reinhard(scene, e)
     assert out[0, 0, 0] == pytest.approx(1.0, rel=1e-5)  # the brightest pixel maps to white, not beyond
     assert out[9, 0, 0] < 0.5
+
+
+def test_photographic_exposure_maps_an_18_percent_grey_surface_to_the_key_whatever_the_picture():
+    # a horizontal Lambertian surface of reflectance 0.18 under illuminance E has radiance 0.18 E / pi;
+    # Reinhard eq. (2) must scale it to the key, and white paper (reflectance 1) to scaled luminance 1
+    e_h = 0.93
+    card = grey([[0.18 * e_h / math.pi]])
+    dark = grey(np.full((8, 8), 1e-3))
+    bright = grey(np.full((8, 8), 0.05))
+    for picture in (dark, bright):
+        exp = photographic_exposure(e_h, white_rgb=picture)
+        assert exp.key / exp.log_average * float(luminance(card)[0, 0]) == pytest.approx(0.18, rel=1e-9)
+        assert exp.white == pytest.approx(1.0)  # nothing in these pictures is brighter than white paper
+        out = reinhard(grey([[e_h / math.pi]]), exp)
+        assert out[0, 0, 0] == pytest.approx(1.0, rel=1e-6)  # white paper maps to display white
+    # a highlight brighter than white paper raises L_white so it does not burn out
+    glossy = bright.copy()
+    glossy[0, 0] = 3.0 * e_h / math.pi
+    assert photographic_exposure(e_h, white_rgb=glossy, white_percentile=100).white == pytest.approx(3.0, rel=1e-9)
+    assert photographic_exposure(0.0) is None and photographic_exposure(float("nan")) is None
 
 
 def test_srgb_round_trip_and_known_points():

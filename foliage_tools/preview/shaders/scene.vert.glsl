@@ -4,6 +4,7 @@
 // (column-vector convention, foliage_tools/scene/model.py) and the matrix for normals.
 
 uniform vec3 u_up;
+uniform vec3 u_sun_dir;
 
 in vec3 in_position;
 in vec3 in_normal;        // the triangle's right-handed (front) unit normal, the same at its 3 corners
@@ -11,8 +12,17 @@ in mat4 in_model;         // per instance
 in mat3 in_normal_matrix; // per instance: inverse transpose of the model's 3x3 part
 
 #ifdef HAS_INDIRECT
+#ifdef SMAX_MODEL
+// boulanger2008 sec. 5.6: s_max(P, w_j) of the leaf as two vec4 per vertex; the scattered
+// sun light is evaluated here (Algorithm 13, boulanger.glsl) for the current sun
+in vec4 in_smax0;
+in vec4 in_smax1;
+#else
 in vec3 in_indirect;  // E_scattered at this corner: scattered irradiance, both faces summed
-out vec3 v_indirect;
+#endif
+out vec3 v_indirect_front;  // scattered irradiance reaching the front face ...
+out vec3 v_indirect_back;   // ... and the back face
+uniform vec3 u_sun_irradiance;
 #endif
 
 uniform mat4 u_view_projection;
@@ -44,7 +54,21 @@ void main() {
 #endif
 #endif
 #ifdef HAS_INDIRECT
-    v_indirect = in_indirect;
+#ifdef SMAX_MODEL
+    // Algorithm 8: the model's terms are per leaf, so per vertex. The sun in the prototype's
+    // frame is the inverse of the instance's linear part applied to it, i.e. the transpose
+    // of the normal matrix (geometry/sun.py to_prototype_space).
+    vec3 light = transpose(in_normal_matrix) * u_sun_dir;
+    light = length(light) > 0.0 ? normalize(light) : u_sun_dir;  // zero-scale instances draw nothing
+    smax_sun_indirect(in_normal, in_smax0, in_smax1, light, v_indirect_front, v_indirect_back);
+    v_indirect_front *= u_sun_irradiance;
+    v_indirect_back *= u_sun_irradiance;
+#else
+    // a baked E_scattered is both faces summed (DESIGN.md section 3); without its split
+    // between the faces each face gets half
+    v_indirect_front = 0.5 * in_indirect;
+    v_indirect_back = 0.5 * in_indirect;
+#endif
 #endif
     gl_Position = u_view_projection * world;
 }

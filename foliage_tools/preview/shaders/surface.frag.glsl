@@ -16,7 +16,8 @@ in vec3 v_world;
 flat in vec3 v_normal;
 in vec2 v_sky;
 #ifdef HAS_INDIRECT
-in vec3 v_indirect;
+in vec3 v_indirect_front;
+in vec3 v_indirect_back;
 #endif
 
 layout(location = 0) out vec4 out_radiance;
@@ -68,9 +69,12 @@ void main() {
     // The sky and the ground reach both faces: eq. (5.4) applied to each hemisphere.
     radiance += (rho_r * sky_irradiance(n, sky_near) + rho_t * sky_irradiance(-n, sky_far)) / PI;
 #ifdef HAS_INDIRECT
-    // E_scattered is both faces summed (DESIGN.md section 3); without its split between
-    // the faces we take half on each, so the seen face reflects half and transmits half.
-    radiance += (rho_r + rho_t) / PI * 0.5 * max(v_indirect, vec3(0.0));
+    // eq. (5.4) on the scattered irradiance of each face (Algorithm 13's rho_f, rho_b): the
+    // seen face reflects what reaches it and transmits what reaches the other face. Baked
+    // methods give half of E_scattered to each face (scene.vert.glsl).
+    vec3 e_near = max(front_seen ? v_indirect_front : v_indirect_back, vec3(0.0));
+    vec3 e_far = max(front_seen ? v_indirect_back : v_indirect_front, vec3(0.0));
+    radiance += (rho_r * e_near + rho_t * e_far) / PI;
 #endif
     out_tree = 1.0;
 #else
