@@ -54,26 +54,45 @@ Sum (1) is split with a smooth weight w(r) that falls from 1 at r_1 to 0 at
 r_2 (a C¹ smoothstep):
 
 * near field, r < r_2: the exact terms w(r) · -ln(1 - o), summed over the
-  leaves of neighbouring cells (cell list of cell size r_2/2);
+  leaves of neighbouring cells (cell list of cell size r_2/2). Each unordered
+  pair is visited once and adds to both leaves (o(P, P') uses A' and N', o(P',
+  P) uses A and N, in opposite octants), see ``_near_kernel``;
 * far field, r > r_1: the leaves are far, so -ln(1 - o) ≈ o, which is linear
   in the leaves: (1 - w(r)) o. Every leaf's mean projected area
   A' ḡ_j(N') (``_octant_projection``: |N'·d| averaged over the directions d
   of the octant) is deposited on the nodes of a grid of step h
   (cloud-in-cell), the sum over nodes of mass × (1 - w(|v|)) 1_{octant j}(v)
   / (Ω_j |v|²) is a discrete convolution done with FFTs (one kernel
-  spectrum, reflected for the 8 octants), and the result is interpolated
-  trilinearly back to every leaf. A leaf's own mass is subtracted exactly
-  (r_1 >= √2 h leaves only the cell diagonals, see ``_fast_depths``).
+  spectrum, reflected for the 8 octants; the zero padding is not transformed
+  and only the kept corner is transformed back), and the result is
+  interpolated trilinearly back to every leaf. A leaf's own mass is
+  subtracted exactly (r_1 >= √2 h leaves only the cell diagonals, see
+  ``_interpolate``).
 
-S1 = Σ o r (for τ) is split the same way with a 1/r kernel. τ from the fast
-sums is multiplied by a calibration, exact/fast τ on ``fast_tau_leaves``
-probe leaves whose bins are also summed exactly. The far field cannot see
-where inside a cell a leaf sits, nor its true |N'·d^|, and it blurs the bin
-planes: on uniform balls (τ R = 2) its s_max differs from the reference's by
-a median 3.2% (95th percentile 16%) at 1.5k leaves, 1.6% (8%) at 20k, 1.2% (7%)
-at 40k and 0.9% (5%) at 100k, with τ within 0.3% (``benchmarks/bench_smax.py``;
-bins with s_max >= 0.05 R). Cost: O(N ρ r_2³) near pairs, O(M log M) for M
-grid nodes and O(N_probe N) for the probes.
+S1 = Σ o r (for τ) is split the same way with a 1/r kernel, sharing the
+deposit and forward transform. τ from the fast sums is multiplied by a
+calibration, exact/fast τ on ``fast_tau_leaves`` probe leaves whose bins are
+also summed exactly (the fast sums are a control variate: over random probe
+sets of 64 leaves at 40k leaves the calibrated τ scatters by 0.3%, the
+probes' own τ by 1.7%).
+
+Accuracy. On uniform balls (τ R = 2) the fast path's s_max differs from the
+reference's by a median 2.8% (95th percentile 12%) at 1.5k leaves, 2.0% (9%)
+at 6k, 1.7% (7%) at 20k, 1.2% (6.0%) at 40k and 0.9% (4.7%) at 100k, with τ
+within 0.6% (``benchmarks/bench_smax.py``; bins with s_max >= 0.05 R). At
+40k leaves (1000 leaves summed exactly; each cause alone, by all-pairs sums
+that include only it) the 95th percentile splits into: the octant-mean
+projected area in place of |N'·d^|, 3.3%; the grid's blur of the bin planes
+(a leaf within ~h of a plane through P is shared between octants), 3.7%; the
+rest of the grid error (cloud-in-cell interpolation of the 1/r² kernel),
+~2.6%; the linearisation -ln(1 - o) ≈ o, 0.17% (at r_1 = 1.5 h). The errors concentrate on the
+short bins: a leaf near the envelope sees, toward the outside, a thin sliver
+of crown along the bin planes, and the blur leaks depth into it from the
+full neighbouring octants (signed median +8% for s_max in [0.05, 0.1) R, +4%
+in [0.1, 0.2) R, -0.5% beyond 0.4 R). Neither grid nor split radius removes
+this at an affordable cost (95th percentile 4.2% with 8x the grid nodes,
+5.6% with 1.7x the near pairs). Cost: O(N ρ r_2³) near pairs, O(M log M) for
+M grid nodes and O(N_probe N) for the probes.
 
 Pure numpy + numba + scipy; no USD, no files, no printing.
 """
@@ -108,12 +127,12 @@ BIN_SOLID_ANGLE = 4.0 * math.pi / N_DIRECTIONS
 
 #: ``path="auto"`` uses the reference path below this many leaves and the fast
 #: path from it on. Measured on uniform balls (``benchmarks/bench_smax.py``):
-#: the fast path's s_max error against the reference falls with N (median 3.2%
-#: at 1.5k, 2.3% at 6k, 1.6% at 20k, 1.2% at 40k leaves; the 95th percentile
-#: 16%, 11%, 8%, 7%) while the reference's O(N²) cost grows (1.5-2.5 s at 20k
-#: leaves on one core, ~4 ns per pair). Below 20k the reference is affordable
-#: and is the method itself; from 20k on the fast path's median error is below
-#: ~1.5%.
+#: the fast path's s_max error against the reference falls with N (median 2.8%
+#: at 1.5k, 2.0% at 6k, 1.7% at 20k, 1.2% at 40k leaves; the 95th percentile
+#: 12%, 9%, 7%, 6%) while the reference's O(N²) cost grows (1.5 s at 20k
+#: leaves, 6.4 s at 40k on 2 shared cores). Below 20k the reference is
+#: affordable and is the method itself; from 20k on the fast path's median
+#: error is below ~1.7%.
 AUTO_FAST_THRESHOLD = 20000
 
 TAU_ESTIMATORS = ("moments", "farthest")
@@ -233,14 +252,18 @@ class EnvelopeParams:
     sets the cell size h."""
     fast_max_cells: int = 96
     """Fast path: cap on grid cells along any axis (memory/FFT size bound)."""
-    fast_blend_start_cells: float = 1.5
+    fast_blend_start_cells: float = 2.3
     """Fast path: r_1 in grid cells, where the near field starts to hand over to the
     far field. Must be >= √2: then the only grid offset within a cell that the far
-    kernel sees is the cell diagonal, and a leaf's own mass is removed exactly."""
+    kernel sees is the cell diagonal, and a leaf's own mass is removed exactly.
+    With r_2 = 2.5, r_1 = 2.3 (a short blend) costs no more pairs than 1.5 and
+    gives a smaller error (95th percentile at 40k leaves 6.1% instead of 7.4%):
+    the near field is exact over more of the pairs it computes anyway."""
     fast_split_cells: float = 2.5
     """Fast path: r_2 in grid cells, beyond which only the far field counts (> r_1)."""
-    fast_tau_leaves: int = 128
-    """Fast path: leaves (seeded subsample) whose bins are also summed exactly. With
+    fast_tau_leaves: int = 64
+    """Fast path: leaves (seeded subsample) whose bins are also summed exactly (cost
+    N per leaf; 64 keep the calibrated τ within ~0.3% at 40k leaves, ~1% at 2k). With
     ``tau_estimator="moments"`` they calibrate the fast sums' τ (ratio exact/fast on
     the same leaves); with ``farthest`` they alone give τ. All leaves when there
     are fewer."""
@@ -562,82 +585,87 @@ def _axis_gap(p: float, lo: float, hi: float) -> float:
 _NEAR_BLOCK = 128
 
 
-@njit(parallel=True, cache=True)
-def _near_kernel(x, nl, area, cell, start, lo, h, shape, r1, r2, reach, inv_omega, max_occ, depth, s1):
+@njit(parallel=True, cache=True, error_model="numpy")
+def _near_kernel(x, an, cell, start, lo, h, shape, r1, r2, inv_omega, max_occ, depth, s1):
     """Exact near-field sums: w(r) -ln(1 - o) into ``depth`` and w(r) o r into ``s1``.
 
-    Leaves are sorted by cell (``start``: CSR offsets, cells of size ``h``).
-    Within r_1 (w = 1) the bin's visibility product is accumulated as on the
-    reference path; in the blend r_1 < r < r_2 the terms are weighted. The
-    candidates of a row of cells are first compacted (branch-free) to those
-    within r_2, which avoids a mispredicted branch per candidate.
+    Leaves are sorted by cell (``start``: CSR offsets of cells of size
+    ``h`` >= r_2/2, so neighbours lie at most 2 cells away); ``an`` is area ×
+    unit normal. Every unordered pair is visited once, from its lower sorted
+    index p, and adds to both leaves: o(p, q) = A_q |N_q·d^|/(Ω r²) to p's bin
+    b of d = q - p, o(q, p) = A_p |N_p·d^|/(Ω r²) to q's bin 7 - b (the
+    opposite octant). A leaf p in the slab of cells i along the first axis
+    has its partners q > p in slabs i..i+2, so slabs taken 3 apart never
+    write to the same leaf: three passes, each parallel over its slabs,
+    without locks. Each term is w -ln(1 - o), the log of the reference path's
+    visibility factor (eq. (1): a sum of logs instead of the log of a
+    product, so nothing to renormalise), with the smoothstep w = 1 within r_1
+    (clamped, no branch). The candidates of a row of cells are first
+    compacted (branch-free) to those within r_2.
     """
     n_leaves = x.shape[0]
-    pairs = np.zeros(n_leaves, dtype=np.int64)
+    acc = np.zeros((n_leaves, 8))
+    acc1 = np.zeros((n_leaves, 8))
     r2sq = r2 * r2
     inv_span = 1.0 / (r2 - r1)
-    for p in prange(n_leaves):
-        vis = np.ones(8)
-        logv = np.zeros(8)
-        acc = np.zeros(8)
-        acc1 = np.zeros(8)
-        buf = np.empty(_NEAR_BLOCK, dtype=np.int64)
-        rbuf = np.empty(_NEAR_BLOCK)
-        px = x[p, 0]
-        py = x[p, 1]
-        pz = x[p, 2]
-        npairs = 0
-        k_lo = max(cell[p, 2] - reach, 0)
-        k_hi = min(cell[p, 2] + reach, shape[2] - 2)
-        for i in range(max(cell[p, 0] - reach, 0), min(cell[p, 0] + reach, shape[0] - 2) + 1):
-            gx = _axis_gap(px, lo[0] + i * h, lo[0] + (i + 1) * h)
-            gx *= gx
-            if gx >= r2sq:
-                continue
-            for j in range(max(cell[p, 1] - reach, 0), min(cell[p, 1] + reach, shape[1] - 2) + 1):
-                gy = _axis_gap(py, lo[1] + j * h, lo[1] + (j + 1) * h)
-                if gx + gy * gy >= r2sq:
-                    continue
-                row = (i * shape[1] + j) * shape[2]
-                q_end = start[row + k_hi + 1]
-                for q_start in range(start[row + k_lo], q_end, _NEAR_BLOCK):
-                    cnt = 0
-                    for q in range(q_start, min(q_start + _NEAR_BLOCK, q_end)):
-                        dx = x[q, 0] - px
-                        dy = x[q, 1] - py
-                        dz = x[q, 2] - pz
-                        rsq = dx * dx + dy * dy + dz * dz
-                        buf[cnt] = q
-                        rbuf[cnt] = rsq
-                        cnt += (rsq < r2sq) & (rsq > 0.0)  # P itself and duplicates excluded
-                    npairs += cnt
-                    for c in range(cnt):
-                        q = buf[c]
-                        rsq = rbuf[c]
-                        dx = x[q, 0] - px
-                        dy = x[q, 1] - py
-                        dz = x[q, 2] - pz
-                        r = math.sqrt(rsq)
-                        o = area[q] * abs(nl[q, 0] * dx + nl[q, 1] * dy + nl[q, 2] * dz) / (rsq * r) * inv_omega
-                        o = min(o, max_occ)
-                        b = _octant(dx, dy, dz)
-                        if r <= r1:
-                            v = vis[b] * (1.0 - o)
-                            if v < _RENORMALISE_BELOW:
-                                logv[b] += math.log(v)
-                                v = 1.0
-                            vis[b] = v
-                            acc1[b] += o * r
-                        else:
-                            t = (r2 - r) * inv_span
-                            w = t * t * (3.0 - 2.0 * t)
-                            acc[b] += w * _neg_log1m(o)
-                            acc1[b] += w * o * r
-        for b in range(8):
-            depth[p, b] = acc[b] - math.log(vis[b]) - logv[b]
-            s1[p, b] = acc1[b]
-        pairs[p] = npairs
-    return pairs.sum()
+    nx = shape[0] - 1  # slabs 0 .. shape[0] - 2 hold leaves
+    slab = shape[1] * shape[2]
+    pairs = np.zeros(nx, dtype=np.int64)
+    for phase in range(3):
+        n_phase = (nx - phase + 2) // 3
+        for s in prange(n_phase):
+            i_home = phase + 3 * s
+            buf = np.empty(_NEAR_BLOCK, dtype=np.int64)
+            npairs = 0
+            for p in range(start[i_home * slab], start[(i_home + 1) * slab]):
+                px = x[p, 0]
+                py = x[p, 1]
+                pz = x[p, 2]
+                k_lo = max(cell[p, 2] - 2, 0)
+                k_hi = min(cell[p, 2] + 2, shape[2] - 2)
+                for i in range(i_home, min(i_home + 2, shape[0] - 2) + 1):
+                    gx = _axis_gap(px, lo[0] + i * h, lo[0] + (i + 1) * h)
+                    gx *= gx
+                    if gx >= r2sq:
+                        continue
+                    for j in range(max(cell[p, 1] - 2, 0), min(cell[p, 1] + 2, shape[1] - 2) + 1):
+                        gy = _axis_gap(py, lo[1] + j * h, lo[1] + (j + 1) * h)
+                        if gx + gy * gy >= r2sq:
+                            continue
+                        row = (i * shape[1] + j) * shape[2]
+                        q_end = start[row + k_hi + 1]
+                        for q_start in range(max(start[row + k_lo], p + 1), q_end, _NEAR_BLOCK):
+                            cnt = 0
+                            for q in range(q_start, min(q_start + _NEAR_BLOCK, q_end)):
+                                dx = x[q, 0] - px
+                                dy = x[q, 1] - py
+                                dz = x[q, 2] - pz
+                                rsq = dx * dx + dy * dy + dz * dz
+                                buf[cnt] = q
+                                cnt += (rsq < r2sq) & (rsq > 0.0)  # duplicates of P excluded
+                            npairs += cnt
+                            for c in range(cnt):
+                                q = buf[c]
+                                dx = x[q, 0] - px
+                                dy = x[q, 1] - py
+                                dz = x[q, 2] - pz
+                                rsq = dx * dx + dy * dy + dz * dz
+                                r = math.sqrt(rsq)
+                                # boulanger2008 sec. 5.6: subtended solid angle A'|N'.d^|/r² over Ω_j
+                                scale = inv_omega / (rsq * r)
+                                o_pq = min(abs(an[q, 0] * dx + an[q, 1] * dy + an[q, 2] * dz) * scale, max_occ)
+                                o_qp = min(abs(an[p, 0] * dx + an[p, 1] * dy + an[p, 2] * dz) * scale, max_occ)
+                                b = _octant(dx, dy, dz)
+                                t = min(max((r2 - r) * inv_span, 0.0), 1.0)
+                                w = t * t * (3.0 - 2.0 * t)
+                                acc[p, b] += w * _neg_log1m(o_pq)
+                                acc1[p, b] += w * o_pq * r
+                                acc[q, 7 - b] += w * _neg_log1m(o_qp)
+                                acc1[q, 7 - b] += w * o_qp * r
+            pairs[i_home] = npairs
+    depth[:] = acc
+    s1[:] = acc1
+    return 2 * pairs.sum()
 
 
 @njit(cache=True)
@@ -669,19 +697,35 @@ def _deposit(x, mass, lo, h, shape, grid):
 
 
 @njit(parallel=True, cache=True)
-def _interpolate(x, lo, h, shape, field, out):
-    """Trilinear interpolation of node fields (F, nx, ny, nz) at the leaves, added to ``out`` (L, F)."""
+def _interpolate(x, lo, h, shape, field, mass, kdiag, floor, out):
+    """Far-field sums at the leaves, added to ``out`` (L, 8), from node fields (8, nx, ny, nz).
+
+    Trilinear (cloud-in-cell) interpolation of octant j's field; a value below
+    ``floor`` is float32 FFT round-off in an empty bin and counts as 0. Then
+    the leaf's own mass is removed: it was deposited on the 8 nodes of its
+    cell and is read back through the same nodes, and with r_1 >= √2 h the
+    kernel vanishes on all offsets within a cell except the 8 cell diagonals,
+    one per octant, each with weight Π f(1 - f): ``kdiag`` × that × the
+    leaf's mass for octant pair min(j, 7 - j).
+    """
     for i in prange(x.shape[0]):
         i0, j0, k0, fu, fv, fw = _cell(x, i, lo, h, shape)
-        for di in range(2):
-            wu = fu if di else 1.0 - fu
-            for dj in range(2):
-                wv = fv if dj else 1.0 - fv
-                for dk in range(2):
-                    wk = fw if dk else 1.0 - fw
-                    wt = wu * wv * wk
-                    for b in range(field.shape[0]):
-                        out[i, b] += wt * field[b, i0 + di, j0 + dj, k0 + dk]
+        fu = min(max(fu, 0.0), 1.0)
+        fv = min(max(fv, 0.0), 1.0)
+        fw = min(max(fw, 0.0), 1.0)
+        own = kdiag * fu * (1.0 - fu) * fv * (1.0 - fv) * fw * (1.0 - fw)
+        for b in range(field.shape[0]):
+            val = 0.0
+            for di in range(2):
+                wu = fu if di else 1.0 - fu
+                for dj in range(2):
+                    wv = fv if dj else 1.0 - fv
+                    for dk in range(2):
+                        wk = fw if dk else 1.0 - fw
+                        val += wu * wv * wk * field[b, i0 + di, j0 + dj, k0 + dk]
+            if val < floor:
+                val = 0.0
+            out[i, b] += val - own * mass[i, min(b, 7 - b)]
 
 
 @lru_cache(maxsize=4)
@@ -740,67 +784,97 @@ def _far_kernel_spectrum(shape, pad, h, r1, r2, power):
     r = h * np.sqrt(ii * ii + jj * jj + kk * kk)
     t = np.clip((r2 - r) / (r2 - r1), 0.0, 1.0)
     weight = np.where(r > r1, frac * (1.0 - t * t * (3.0 - 2.0 * t)), 0.0)
-    kern = np.zeros(tuple(pad), dtype=np.float32)
-    kern[: shape[0], : shape[1], : shape[2]] = weight / (BIN_SOLID_ANGLE * np.maximum(r, r1) ** power)
-    return scipy.fft.rfftn(kern, workers=-1)
+    kern = (weight / (BIN_SOLID_ANGLE * np.maximum(r, r1) ** power)).astype(np.float32)
+    return _rfftn_padded(kern[None], pad)[0]
 
 
-def _far_field(x, mass, lo, h, shape, r1, r2, power) -> np.ndarray:
-    """(L, 8) far-field sums Σ_q m_q (1 - w) 1_{octant j} / (Ω r^power) at the leaves, on a grid of step h."""
+def _rfftn_padded(grid: np.ndarray, pad) -> np.ndarray:
+    """``scipy.fft.rfftn(grid, s=pad, axes=(1, 2, 3))`` without transforming the zero padding.
+
+    The input fills only the corner [0, s) of the padded box, so each 1-D pass
+    runs over the rows that are not all zero: the last axis on s0 s1 rows, the
+    middle one on s0 (p2/2+1) rows, the first one on p1 (p2/2+1) rows.
+    """
+    out = scipy.fft.rfft(grid, n=pad[2], axis=3, workers=-1)
+    out = scipy.fft.fft(out, n=pad[1], axis=2, workers=-1, overwrite_x=True)
+    return scipy.fft.fft(out, n=pad[0], axis=1, workers=-1, overwrite_x=True)
+
+
+def _irfftn_cropped(spec: np.ndarray, pad, shape) -> np.ndarray:
+    """``scipy.fft.irfftn(spec, s=pad, axes=(1, 2, 3))[:, :s0, :s1, :s2]`` computing only the kept corner.
+
+    The inverse passes are separable, so cropping each axis right after its
+    pass gives the same values while the later passes run on fewer rows.
+    """
+    out = scipy.fft.ifft(spec, axis=1, workers=-1)[:, : shape[0]]
+    out = scipy.fft.ifft(out, axis=2, workers=-1, overwrite_x=True)[:, :, : shape[1]]
+    return scipy.fft.irfft(out, n=pad[2], axis=3, workers=-1)[..., : shape[2]]
+
+
+def _far_field(x, mass, lo, h, shape, r1, r2, powers) -> list[np.ndarray]:
+    """Far-field sums Σ_{q != P} m_q (1 - w) 1_{octant j} / (Ω r^power) at the leaves, on a grid of step h.
+
+    One (L, 8) array per entry of ``powers``; the masses are deposited and
+    transformed once for all of them.
+    """
     shape_arr = np.array(shape, dtype=np.int64)
     grid = np.zeros((4,) + tuple(shape), dtype=np.float32)
     _deposit(x, mass, lo, h, shape_arr, grid)
     pad = tuple(scipy.fft.next_fast_len(2 * s - 1, real=True) for s in shape)
-    kspec = _far_kernel_spectrum(shape, pad, h, r1, r2, power)
-    mspec = scipy.fft.rfftn(grid, s=pad, axes=(1, 2, 3), workers=-1)
+    mspec = _rfftn_padded(grid, pad)
+    del grid
     specs = np.empty((N_DIRECTIONS,) + mspec.shape[1:], dtype=mspec.dtype)
-    for j in range(N_DIRECTIONS):
-        # octant j is positive along x if j&1, z if j&2, y if j&4; octant 0 is all negative
-        pair = j if j < 4 else 7 - j
-        specs[j] = mspec[pair] * _reflect_spectrum(kspec, (bool(j & 1), bool(j & 4), bool(j & 2)), pad)
-    full = scipy.fft.irfftn(specs, s=pad, axes=(1, 2, 3), workers=-1)
-    fields = np.ascontiguousarray(full[:, : shape[0], : shape[1], : shape[2]])
-    out = np.zeros((x.shape[0], N_DIRECTIONS))
-    _interpolate(x, lo, h, shape_arr, fields, out)
-    # float32 FFT round-off (~1e-7 of the largest value) would leave empty bins
-    # slightly non-zero: treat what is below 1e-6 of the largest as 0
-    out[out < 1e-6 * float(np.abs(fields).max(initial=0.0))] = 0.0
-    return out
+    results = []
+    for power in powers:
+        _octant_spectra(mspec, _far_kernel_spectrum(shape, pad, h, r1, r2, power), specs)
+        fields = np.ascontiguousarray(_irfftn_cropped(specs, pad, shape))
+        # kernel on the cell diagonal √3 h, for the leaf's own mass (see _interpolate)
+        diag = math.sqrt(3.0) * h
+        t = min(max((r2 - diag) / (r2 - r1), 0.0), 1.0)
+        kdiag = (1.0 - t * t * (3.0 - 2.0 * t)) / (BIN_SOLID_ANGLE * diag**power)
+        # float32 FFT round-off (~1e-7 of the largest value) would leave empty bins
+        # slightly non-zero: what is below 1e-6 of the largest counts as 0
+        floor = 1e-6 * float(np.abs(fields).max(initial=0.0))
+        out = np.zeros((x.shape[0], N_DIRECTIONS))
+        _interpolate(x, lo, h, shape_arr, fields, mass, kdiag, floor, out)
+        results.append(out)
+    return results
 
 
-def _reflect_spectrum(spec: np.ndarray, flips: tuple[bool, bool, bool], pad) -> np.ndarray:
-    """Spectrum of k(S u) from that of a real k(u), S flipping the axes in ``flips``.
+@njit(parallel=True, cache=True)
+def _octant_spectra(mspec, kspec, out):
+    """out[j] = mspec[min(j, 7 - j)] × spectrum of octant j's kernel, from octant 0's ``kspec``.
 
-    ``spec`` has the rFFT layout over its last three axes (leading axes are batch).
-    F[k∘S](ξ) = F[k](Sξ); the last axis holds only ξ3 >= 0, so a flip of it uses
-    F(ξ1, ξ2, -ξ3) = conj F(-ξ1, -ξ2, ξ3), true for any real k.
+    Octant j's kernel is octant 0's reflected along the axes where j is
+    positive (x if j&1, y if j&4, z if j&2): k_j(u) = k_0(S u), whose spectrum
+    is F[k_0](S ξ). The last axis of an rFFT holds only ξ3 >= 0, so a flip of
+    it uses F(ξ1, ξ2, -ξ3) = conj F(-ξ1, -ξ2, ξ3), true for any real kernel.
     """
-    neg = [bool(flips[0]), bool(flips[1])]
-    conj = bool(flips[2])
-    if conj:
-        neg = [not neg[0], not neg[1]]
-    out = spec
-    for a in range(2):
-        if neg[a]:
-            idx = (-np.arange(pad[a])) % pad[a]
-            out = np.take(out, idx, axis=out.ndim - 3 + a)
-    return np.conj(out) if conj else out
+    p0, p1, n2 = kspec.shape
+    for i0 in prange(p0):
+        a0 = np.int64(i0)  # prange's index may be unsigned: keep the reflected index an integer
+        for j in range(8):
+            pair = j if j < 4 else 7 - j
+            conj = (j & 2) != 0
+            neg0 = ((j & 1) != 0) != conj
+            neg1 = ((j & 4) != 0) != conj
+            k0 = (p0 - a0) % p0 if neg0 else a0
+            for i1 in range(p1):
+                k1 = (p1 - i1) % p1 if neg1 else i1
+                for i2 in range(n2):
+                    kv = kspec[k0, k1, i2]
+                    if conj:
+                        kv = kv.conjugate()
+                    out[j, i0, i1, i2] = mspec[pair, i0, i1, i2] * kv
 
 
-def _fast_depths(x, nl, area, params: EnvelopeParams) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Optical depth D and S1 = Σ o r of every bin of every leaf: exact near field + FFT far field."""
-    n_leaves = x.shape[0]
-    depth = np.zeros((n_leaves, N_DIRECTIONS))
-    s1 = np.zeros((n_leaves, N_DIRECTIONS))
-    if n_leaves < 2:
-        return depth, s1, {}
-    lo, h, shape = _grid_for(x, area, params)
-    r2 = params.fast_split_cells * h
-    r1 = params.fast_blend_start_cells * h
-    shape_arr = np.array(shape, dtype=np.int64)
-    stats = {"grid": list(shape), "cell_size": h, "near_radius": r2, "blend_start": r1}
+def _near_sums(x, nl, area, lo, r1, r2, max_occlusion) -> tuple[np.ndarray, np.ndarray, int]:
+    """Near-field D and S1 (L, 8) of every leaf, and the number of (ordered) pairs within r_2.
 
-    # near field: a cell list with cells of r_2/2 (5³ cells around a leaf), leaves sorted by cell
+    Σ over the other leaves q within r_2 of w(r) -ln(1 - o) and w(r) o r, w
+    the smoothstep from 1 at r_1 to 0 at r_2; a cell list with cells of r_2/2
+    (neighbours at most 2 cells away), leaves sorted by cell.
+    """
     hn = 0.5 * r2
     nshape = np.array([math.floor(e / hn) + 2 for e in (x.max(axis=0) - lo)], dtype=np.int64)
     cell, lin = _cell_index(x, lo, hn, nshape)
@@ -808,34 +882,39 @@ def _fast_depths(x, nl, area, params: EnvelopeParams) -> tuple[np.ndarray, np.nd
     order = np.argsort(lin, kind="stable")
     start = np.zeros(n_cells + 1, dtype=np.int64)
     np.cumsum(np.bincount(lin, minlength=n_cells), out=start[1:])
-    inv_omega = 1.0 / BIN_SOLID_ANGLE
-    depth_s = np.empty_like(depth)
-    s1_s = np.empty_like(s1)
+    depth_s = np.empty((x.shape[0], N_DIRECTIONS))
+    s1_s = np.empty_like(depth_s)
     pairs = _near_kernel(
-        x[order], nl[order], area[order], cell[order], start, lo, hn, nshape, r1, r2, 2, inv_omega,
-        float(params.max_occlusion), depth_s, s1_s,
+        np.ascontiguousarray(x[order]), np.ascontiguousarray((nl * area[:, None])[order]), cell[order], start, lo,
+        hn, nshape, r1, r2, 1.0 / BIN_SOLID_ANGLE, float(max_occlusion), depth_s, s1_s,
     )
+    depth = np.empty_like(depth_s)
+    s1 = np.empty_like(s1_s)
     depth[order] = depth_s
     s1[order] = s1_s
+    return depth, s1, int(pairs)
+
+
+def _fast_depths(x, nl, area, params: EnvelopeParams) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Optical depth D and S1 = Σ o r of every bin of every leaf: exact near field + FFT far field."""
+    n_leaves = x.shape[0]
+    if n_leaves < 2:
+        return np.zeros((n_leaves, N_DIRECTIONS)), np.zeros((n_leaves, N_DIRECTIONS)), {}
+    lo, h, shape = _grid_for(x, area, params)
+    r2 = params.fast_split_cells * h
+    r1 = params.fast_blend_start_cells * h
+    stats = {"grid": list(shape), "cell_size": h, "near_radius": r2, "blend_start": r1}
+
+    depth, s1, pairs = _near_sums(x, nl, area, lo, r1, r2, float(params.max_occlusion))
+    stats["near_pairs"] = pairs
 
     # far field: mean projected area per octant pair, deposited on the nodes
     mass = _octant_projection(nl, area)
     # larger leaves than the grid was sized for (above the 99th percentile):
     # cap their far-field occlusion at r_1 to the most one leaf can give, -ln(1 - max_occlusion)
     np.minimum(mass, -math.log1p(-params.max_occlusion) * BIN_SOLID_ANGLE * r1 * r1, out=mass)
-    depth += _far_field(x, mass, lo, h, shape, r1, r2, 2)
-    # Remove each leaf's own mass. It sits on the 8 nodes of its cell with
-    # weights Π (f or 1-f) and is read back with the same weights; offsets up
-    # to √2 h lie inside r_1 where the kernel is 0, so only the 8 cell
-    # diagonals remain -- exactly one per octant, each with weight Π f(1-f).
-    diag = math.sqrt(3.0) * h
-    t = min(max((r2 - diag) / (r2 - r1), 0.0), 1.0)
-    kdiag = (1.0 - t * t * (3.0 - 2.0 * t)) / (BIN_SOLID_ANGLE * diag * diag)
-    f = (x - lo) / h
-    f = np.clip(f - np.clip(np.floor(f), 0, shape_arr - 2), 0.0, 1.0)
-    own = np.prod(f * (1.0 - f), axis=1)
-    depth -= kdiag * own[:, None] * mass[:, [0, 1, 2, 3, 3, 2, 1, 0]]
-    s1 += _far_field(x, mass, lo, h, shape, r1, r2, 1)
-    s1 -= (kdiag * diag) * own[:, None] * mass[:, [0, 1, 2, 3, 3, 2, 1, 0]]
-    stats["near_pairs"] = int(pairs)
+    # optical depth (kernel 1/r², eq. (1) linearised) and S1 = Σ o r (kernel 1/r)
+    far_depth, far_s1 = _far_field(x, mass, lo, h, shape, r1, r2, (2, 1))
+    depth += far_depth
+    s1 += far_s1
     return np.maximum(depth, 0.0), np.maximum(s1, 0.0), stats
