@@ -136,7 +136,7 @@ from numba import njit, prange
 
 from foliage_tools.errors import UsageError
 from foliage_tools.lighting.collision import Medium, brown, omega, unit_moving_block
-from foliage_tools.lighting.lattice import DIRECTIONS, UNIT_DIRECTIONS, barycentric_weights
+from foliage_tools.lighting.lattice import DIRECTIONS, OPPOSITE, UNIT_DIRECTIONS, barycentric_weights
 
 __all__ = [
     "Boundary",
@@ -162,6 +162,25 @@ _CZ = np.ascontiguousarray(DIRECTIONS[1:, 2])
 SOLVERS = ("auto", "iterate", "bicgstab", "extrapolate")
 #: Occupied runs (nz * K values) at least this long collide by BLAS gemm, shorter ones by a loop.
 _BLAS_MIN_RUN = 256
+NH = NQ // 2  # opposite pairs: direction 2p + 1 is the opposite of 2p (checked in _parity_blocks)
+
+
+def _parity_blocks(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Even and odd parts (..., 9, 9) of moving blocks A (..., 18, 18) over the opposite pairs (2p, 2p + 1).
+
+    With s_p = f_2p + f_2p+1 and d_p = f_2p - f_2p+1, ``(A f)_2p = (AE s + AO d)_p`` and
+    ``(A f)_2p+1 = (AE s - AO d)_p``, where AE = (A[2p, 2q] + A[2p, 2q+1]) / 2 and
+    AO = (A[2p, 2q] - A[2p, 2q+1]) / 2. This needs A to commute with inversion, which holds for
+    every Omega of geist2008 eqs. (5)-(9) (it depends only on the angle between directions); a
+    block that does not is refused rather than solved wrongly.
+    """
+    opp = np.asarray(OPPOSITE[1:]) - 1
+    if not np.array_equal(opp, np.arange(NQ) ^ 1):
+        raise AssertionError("lattice order changed: direction 2p + 1 must be the opposite of 2p")
+    if not np.allclose(A[..., opp, :][..., :, opp], A, rtol=0, atol=1e-12 * max(1.0, float(np.abs(A).max()))):
+        raise ValueError("the collision block does not commute with inversion c -> -c; the kernel's parity split needs it")
+    even, odd = A[..., 0::2, 0::2], A[..., 0::2, 1::2]
+    return (even + odd) / 2, (even - odd) / 2
 
 
 class LatticeStabilityError(UsageError, ValueError):
@@ -391,11 +410,12 @@ class LBResult:
 
 
 @njit(parallel=True, fastmath=True, cache=True)
-def _sweep(f, out, rho, mat, A, mode, wt, part1, part2):  # pragma: no cover - compiled
+def _sweep(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no cover - compiled
     """One fused collision + push-streaming sweep; writes every non-inflow slot of ``out``.
 
     f, out, wt : (nx, ny, 18, C, nz, B); rho : (nx, ny, nz); mat : (nx, ny, nz) uint8;
     A : (nmat, C, 18, 18) unit-density moving block of Omega (A[m, c, i, j]);
+    AE, AO : (nmat, C, 9, 9) its even and odd parts over opposite pairs (``_parity_blocks``);
     part1, part2 : (nx, C, nz*B) float64 partial sums, per x-slab and (z, b).
 
     mode 0: out = T f.
@@ -445,11 +465,16 @@ def _sweep(f, out, rho, mat, A, mode, wt, part1, part2):  # pragma: no cover - c
                             for b in range(B):
                                 re[zz * B + b] = v
                 if n >= _BLAS_MIN_RUN:
-                    # long runs: the collision is one small matrix product per channel and material,
-                    # (18 x 18) @ (18 x n), by BLAS gemm (2x the loop below per core: it keeps its
-                    # accumulators in registers) on a contiguous copy of the run
-                    Fb = buf[: nq * n].reshape((nq, n))
-                    Pb = prod[: nq * n].reshape((nq, n))
+                    # long runs: the collision as matrix products by BLAS gemm (2x the loop below per
+                    # core: it keeps its accumulators in registers). Omega depends only on the angle
+                    # between directions, so it commutes with inversion c -> -c; over the opposite
+                    # pairs (2p, 2p + 1) it splits into an even part acting on s = f_2p + f_2p+1 and an
+                    # odd part acting on d = f_2p - f_2p+1: two (9 x 9) @ (9 x n) products, half the
+                    # multiply-adds of (18 x 18) @ (18 x n).
+                    Sb = buf[: NH * n].reshape((NH, n))
+                    Db = buf[NH * n : 2 * NH * n].reshape((NH, n))
+                    Eb = prod[: NH * n].reshape((NH, n))
+                    Ob = prod[NH * n : 2 * NH * n].reshape((NH, n))
                     for c in range(C):
                         for i in range(nq):
                             h = H[i, c]
@@ -458,22 +483,33 @@ def _sweep(f, out, rho, mat, A, mode, wt, part1, part2):  # pragma: no cover - c
                                 h[l] = fi[l]
                             for l in range(l0 + n, L):
                                 h[l] = fi[l]
-                            fb = Fb[i]
+                        for p in range(NH):
+                            fa = F[2 * p, c, l0 : l0 + n]
+                            fb = F[2 * p + 1, c, l0 : l0 + n]
+                            sp = Sb[p]
+                            dp = Db[p]
                             for l in range(n):
-                                fb[l] = fi[l0 + l]
+                                sp[l] = fa[l] + fb[l]
+                                dp[l] = fa[l] - fb[l]
                         first = True
                         for m in range(nmat):
                             if not has[m]:
                                 continue
                             re = rexp[m, l0 : l0 + n]
-                            np.dot(A[m, c], Fb, Pb)
+                            np.dot(AE[m, c], Sb, Eb)
+                            np.dot(AO[m, c], Db, Ob)
                             # geist2008 eq. (2): f + rho * Omega f, f_0 removed (sec. 3)
-                            for i in range(nq):
-                                h = H[i, c, l0 : l0 + n]
-                                pi = Pb[i]
-                                fb = Fb[i] if first else h
+                            for p in range(NH):
+                                ha = H[2 * p, c, l0 : l0 + n]
+                                hb = H[2 * p + 1, c, l0 : l0 + n]
+                                fa = F[2 * p, c, l0 : l0 + n] if first else ha
+                                fb = F[2 * p + 1, c, l0 : l0 + n] if first else hb
+                                ep = Eb[p]
+                                op = Ob[p]
                                 for l in range(n):
-                                    h[l] = fb[l] + re[l] * pi[l]
+                                    r = re[l]
+                                    ha[l] = fa[l] + r * (ep[l] + op[l])
+                                    hb[l] = fb[l] + r * (ep[l] - op[l])
                             first = False
                 else:
                     # short runs (a gemm call costs more): three output directions per pass share
@@ -725,7 +761,9 @@ class _Operator:
             self.mat[problem.brown_mask] = 1
             media.append(problem.brown_medium)
         self.media = tuple(media)
-        self.A = np.ascontiguousarray(np.stack([unit_moving_block(m) for m in media]), dtype=self.dtype)
+        A64 = np.stack([unit_moving_block(m) for m in media])
+        self.A = np.ascontiguousarray(A64, dtype=self.dtype)
+        self.AE, self.AO = (np.ascontiguousarray(b, dtype=self.dtype) for b in _parity_blocks(A64))
         self.sig_a = np.array([m.sigma_a for m in media], dtype=np.float64)
         self.bnd = np.array([b.inflow for b in problem.boundaries], dtype=np.float64).T  # (18, K)
         # inflow slot (r, i): the upstream node r - c_i is outside the grid
@@ -793,7 +831,7 @@ class _Operator:
         if residual:
             p1[:] = 0.0
             p2[:] = 0.0
-        _sweep(f, out, self.rho, self.mat, self.A, 1 if residual else 0, f, p1, p2)
+        _sweep(f, out, self.rho, self.mat, self.A, self.AE, self.AO, 1 if residual else 0, f, p1, p2)
         if not residual:
             return None
         num, den = self.reduce(p1), self.reduce(p2)
@@ -804,7 +842,7 @@ class _Operator:
         p1, p2 = self._parts[0], self._parts[1]
         p1[:] = 0.0
         p2[:] = 0.0
-        _sweep(v, out, self.rho, self.mat, self.A, 2, wt, p1, p2)
+        _sweep(v, out, self.rho, self.mat, self.A, self.AE, self.AO, 2, wt, p1, p2)
         return self.reduce(p1), self.reduce(p2)
 
     def dot(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -490,3 +490,22 @@ def test_unscattered_start_reaches_the_same_steady_state_in_fewer_sweeps():
     assert runs["unscattered"].iterations < runs["zero"].iterations
     with pytest.raises(ValueError, match="initial"):
         LBParams(initial="ones")
+
+
+def test_parity_blocks_reproduce_the_collision_and_refuse_asymmetric_blocks(rng):
+    """The kernel's even/odd split over opposite pairs is exact for geist2008's Omega, refused otherwise."""
+    from foliage_tools.lighting.collision import unit_moving_block
+    from foliage_tools.lighting.lb import _parity_blocks
+
+    A = unit_moving_block(Medium(sigma_a=(0.1, 0.4), sigma_s=(0.85, 0.5), g=(0.6, -1.0)))  # (C, 18, 18)
+    AE, AO = _parity_blocks(A)
+    f = rng.uniform(0, 1, (18, 7))
+    s, d = f[0::2] + f[1::2], f[0::2] - f[1::2]
+    for c in range(2):
+        full = A[c] @ f
+        np.testing.assert_allclose(full[0::2], AE[c] @ s + AO[c] @ d, atol=1e-14)
+        np.testing.assert_allclose(full[1::2], AE[c] @ s - AO[c] @ d, atol=1e-14)
+    bad = A.copy()
+    bad[0, 0, 2] += 0.1  # breaks the symmetry under c -> -c
+    with pytest.raises(ValueError, match="inversion"):
+        _parity_blocks(bad)
