@@ -61,7 +61,7 @@ __all__ = ["GridSpec", "area_per_voxel", "grid_for_bounds", "mark_wood_fraction"
 #: triangle clipped by the 6 planes of a box has at most 9 vertices; the clip
 #: routine never writes past this capacity (a numerically non-convex sliver
 #: could otherwise produce more crossings than exact arithmetic allows).
-_CAP = 16
+CLIP_CAP = 16
 
 #: Padding (in sub-cube units) of candidate ranges derived from clipped
 #: polygons in the subgrid kernel: it only adds candidates, the exact
@@ -267,7 +267,7 @@ def _clip(src, n, dst, axis, c, keep_above):
         if not keep_above:
             dcur = -dcur
         crossing = (dprev < 0.0 and dcur > 0.0) or (dprev > 0.0 and dcur < 0.0)
-        if crossing and m < _CAP:
+        if crossing and m < CLIP_CAP:
             if src[prev, axis] <= src[cur, axis]:
                 a = prev
                 b = cur
@@ -279,7 +279,7 @@ def _clip(src, n, dst, axis, c, keep_above):
                 dst[m, d] = src[a, d] + t * (src[b, d] - src[a, d])
             dst[m, axis] = c
             m += 1
-        if dcur >= 0.0 and m < _CAP:
+        if dcur >= 0.0 and m < CLIP_CAP:
             for d in range(3):
                 dst[m, d] = src[cur, d]
             m += 1
@@ -289,7 +289,7 @@ def _clip(src, n, dst, axis, c, keep_above):
 
 
 @njit(cache=True)
-def _clip_slab(src, n, dst, tmp, axis, j, pmin, pmax):
+def clip_slab(src, n, dst, tmp, axis, j, pmin, pmax):
     """Clip ``src[:n]`` (coordinate range ``[pmin, pmax]`` along ``axis``) to the closed slab ``[j, j+1]``.
 
     Only the planes the polygon actually crosses are applied; the result is
@@ -311,7 +311,7 @@ def _clip_slab(src, n, dst, tmp, axis, j, pmin, pmax):
 
 
 @njit(cache=True)
-def _coord_range(poly, n, axis):
+def coord_range(poly, n, axis):
     lo = poly[0, axis]
     hi = lo
     for q in range(1, n):
@@ -324,7 +324,7 @@ def _coord_range(poly, n, axis):
 
 
 @njit(cache=True)
-def _owned_range(pmin, pmax, n):
+def owned_range(pmin, pmax, n):
     """Voxels ``[j0, j1]`` that own area of a polygon spanning ``[pmin, pmax]`` along one axis (empty: j1 < j0).
 
     Half-open convention: voxel ``j`` owns ``[j, j+1)``, the last voxel also its
@@ -367,17 +367,17 @@ def _area_kernel(tris, origin, h, nx, ny, nz, nthreads):
     ntri = tris.shape[0]
     h2 = h * h
     for t in prange(nthreads):
-        tri = np.empty((_CAP, 3))
-        tmp = np.empty((_CAP, 3))
-        px = np.empty((_CAP, 3))
-        py = np.empty((_CAP, 3))
-        pz = np.empty((_CAP, 3))
+        tri = np.empty((CLIP_CAP, 3))
+        tmp = np.empty((CLIP_CAP, 3))
+        px = np.empty((CLIP_CAP, 3))
+        py = np.empty((CLIP_CAP, 3))
+        pz = np.empty((CLIP_CAP, 3))
         for it in range(ntri):
             for v in range(3):
                 for d in range(3):
                     tri[v, d] = (tris[it, v, d] - origin[d]) / h
-            xmin, xmax = _coord_range(tri, 3, 0)
-            i0, i1 = _owned_range(xmin, xmax, nx)
+            xmin, xmax = coord_range(tri, 3, 0)
+            i0, i1 = owned_range(xmin, xmax, nx)
             if i1 < i0:
                 continue
             first = _first_owned(i0, t, nthreads)
@@ -409,19 +409,19 @@ def _area_kernel(tris, origin, h, nx, ny, nz, nthreads):
             k2 = (k + 2) % 3
             scale = 0.5 * h2 * norm / nk
             for i in range(first, i1 + 1, nthreads):
-                mx = _clip_slab(tri, 3, px, tmp, 0, i, xmin, xmax)
+                mx = clip_slab(tri, 3, px, tmp, 0, i, xmin, xmax)
                 if mx < 3:
                     continue
-                ymin, ymax = _coord_range(px, mx, 1)
-                j0, j1 = _owned_range(ymin, ymax, ny)
+                ymin, ymax = coord_range(px, mx, 1)
+                j0, j1 = owned_range(ymin, ymax, ny)
                 for j in range(j0, j1 + 1):
-                    my = _clip_slab(px, mx, py, tmp, 1, j, ymin, ymax)
+                    my = clip_slab(px, mx, py, tmp, 1, j, ymin, ymax)
                     if my < 3:
                         continue
-                    zmin, zmax = _coord_range(py, my, 2)
-                    l0, l1 = _owned_range(zmin, zmax, nz)
+                    zmin, zmax = coord_range(py, my, 2)
+                    l0, l1 = owned_range(zmin, zmax, nz)
                     for l in range(l0, l1 + 1):
-                        mz = _clip_slab(py, my, pz, tmp, 2, l, zmin, zmax)
+                        mz = clip_slab(py, my, pz, tmp, 2, l, zmin, zmax)
                         if mz < 3:
                             continue
                         s = 0.0
@@ -520,15 +520,15 @@ def _subgrid_kernel(tris, origin, h, nx, ny, nz, nthreads):
     sz = 3 * nz
     ntri = tris.shape[0]
     for t in prange(nthreads):
-        tri = np.empty((_CAP, 3))
-        tmp = np.empty((_CAP, 3))
-        px = np.empty((_CAP, 3))
-        py = np.empty((_CAP, 3))
+        tri = np.empty((CLIP_CAP, 3))
+        tmp = np.empty((CLIP_CAP, 3))
+        px = np.empty((CLIP_CAP, 3))
+        py = np.empty((CLIP_CAP, 3))
         for it in range(ntri):
             for v in range(3):
                 for d in range(3):
                     tri[v, d] = (tris[it, v, d] - origin[d]) / h * 3.0
-            xmin, xmax = _coord_range(tri, 3, 0)
+            xmin, xmax = coord_range(tri, 3, 0)
             a0, a1 = _touched_range(xmin, xmax, sx, 0.0)
             if a1 < a0:
                 continue
@@ -552,18 +552,18 @@ def _subgrid_kernel(tris, origin, h, nx, ny, nz, nthreads):
                 # Candidates: the triangle's piece in the closed x-slab [a, a+1],
                 # then its piece in each touched column [a, a+1] x [b, b+1]. The
                 # ranges only prune; the exact SAT test decides every sub-cube.
-                mx = _clip_slab(tri, 3, px, tmp, 0, a, xmin, xmax)
+                mx = clip_slab(tri, 3, px, tmp, 0, a, xmin, xmax)
                 if mx == 0:
                     continue
-                ymin, ymax = _coord_range(px, mx, 1)
+                ymin, ymax = coord_range(px, mx, 1)
                 b0, b1 = _touched_range(ymin, ymax, sy, _RANGE_PAD)
                 for b in range(b0, b1 + 1):
-                    my = _clip_slab(px, mx, py, tmp, 1, b, ymin - _RANGE_PAD, ymax + _RANGE_PAD)
+                    my = clip_slab(px, mx, py, tmp, 1, b, ymin - _RANGE_PAD, ymax + _RANGE_PAD)
                     if my == 0:
                         # rounding may lose a piece that only touches the column; fall back to the slab's range
-                        zmin, zmax = _coord_range(px, mx, 2)
+                        zmin, zmax = coord_range(px, mx, 2)
                     else:
-                        zmin, zmax = _coord_range(py, my, 2)
+                        zmin, zmax = coord_range(py, my, 2)
                     c0, c1 = _touched_range(zmin, zmax, sz, _RANGE_PAD)
                     j = b // 3
                     for c in range(c0, c1 + 1):

@@ -60,7 +60,7 @@ from numba import njit, prange
 # The own-leaf kernel must cut leaves into exactly the voxel pieces the density
 # grid was built from, so it reuses the clipping of geometry.voxelize (same
 # package, same convention) instead of a second copy of it.
-from ..geometry.voxelize import _CAP, GridSpec, _clip_slab, _coord_range, _owned_range
+from ..geometry.voxelize import CLIP_CAP, GridSpec, clip_slab, coord_range, owned_range
 from .phase import SPHERICAL_G_FUNCTION
 
 __all__ = [
@@ -204,17 +204,17 @@ def _own_leaf_kernel(tris, start, origin, h, nx, ny, nz, pts, dirs, out):
     n_leaves = start.shape[0] - 1
     n_dir = dirs.shape[0]
     for p in prange(n_leaves):
-        tri = np.empty((_CAP, 3))
-        tmp = np.empty((_CAP, 3))
-        px = np.empty((_CAP, 3))
-        py = np.empty((_CAP, 3))
-        pz = np.empty((_CAP, 3))
+        tri = np.empty((CLIP_CAP, 3))
+        tmp = np.empty((CLIP_CAP, 3))
+        px = np.empty((CLIP_CAP, 3))
+        py = np.empty((CLIP_CAP, 3))
+        pz = np.empty((CLIP_CAP, 3))
         for it in range(start[p], start[p + 1]):
             for v in range(3):
                 for d in range(3):
                     tri[v, d] = (tris[it, v, d] - origin[d]) / h
-            xmin, xmax = _coord_range(tri, 3, 0)
-            i0, i1 = _owned_range(xmin, xmax, nx)
+            xmin, xmax = coord_range(tri, 3, 0)
+            i0, i1 = owned_range(xmin, xmax, nx)
             if i1 < i0:
                 continue
             ax = tri[1, 0] - tri[0, 0]
@@ -241,19 +241,19 @@ def _own_leaf_kernel(tris, start, origin, h, nx, ny, nz, pts, dirs, out):
             k2 = (kk + 2) % 3
             scale = 0.5 * norm / nk
             for i in range(i0, i1 + 1):
-                mx = _clip_slab(tri, 3, px, tmp, 0, i, xmin, xmax)
+                mx = clip_slab(tri, 3, px, tmp, 0, i, xmin, xmax)
                 if mx < 3:
                     continue
-                ymin, ymax = _coord_range(px, mx, 1)
-                j0, j1 = _owned_range(ymin, ymax, ny)
+                ymin, ymax = coord_range(px, mx, 1)
+                j0, j1 = owned_range(ymin, ymax, ny)
                 for j in range(j0, j1 + 1):
-                    my = _clip_slab(px, mx, py, tmp, 1, j, ymin, ymax)
+                    my = clip_slab(px, mx, py, tmp, 1, j, ymin, ymax)
                     if my < 3:
                         continue
-                    zmin, zmax = _coord_range(py, my, 2)
-                    l0, l1 = _owned_range(zmin, zmax, nz)
+                    zmin, zmax = coord_range(py, my, 2)
+                    l0, l1 = owned_range(zmin, zmax, nz)
                     for l in range(l0, l1 + 1):
-                        mz = _clip_slab(py, my, pz, tmp, 2, l, zmin, zmax)
+                        mz = clip_slab(py, my, pz, tmp, 2, l, zmin, zmax)
                         if mz < 3:
                             continue
                         s = 0.0

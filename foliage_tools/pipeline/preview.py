@@ -281,8 +281,7 @@ def load_smax_data(path: Path, scene: Scene) -> dict[str, tuple[float, dict[str,
     :class:`InputError` naming ``foliage smax`` when no leaf mesh has
     ``primvars:foliage:smax`` or a baked tree has no ``foliage:tau``.
     """
-    from foliage_tools.scene.primvars import read_mesh_primvars
-    from foliage_tools.scene.read import open_stage
+    from foliage_tools.scene.primvars import read_attribute, read_mesh_primvars
 
     spec = METHOD_DATA["smax"]
     rerun = f"Run `{spec.command} {path} -o OUT.usda` and preview OUT.usda (or use --method direct)."
@@ -292,7 +291,7 @@ def load_smax_data(path: Path, scene: Scene) -> dict[str, tuple[float, dict[str,
     found = read_mesh_primvars(path, [spec.required], list(leaf_meshes))[spec.required]
     if not found:
         raise InputError(f"@{path}@ has no smax data: no leaf mesh has primvars:{spec.required}. {rerun}")
-    stage = open_stage(path)
+    taus = read_attribute(path, "foliage:tau", [p.path for p in scene.prototypes])
     out: dict[str, tuple[float, dict[str, np.ndarray]]] = {}
     for mesh_path, pv in found.items():
         k, mesh = leaf_meshes[mesh_path]
@@ -313,9 +312,7 @@ def load_smax_data(path: Path, scene: Scene) -> dict[str, tuple[float, dict[str,
         else:
             corners = v[mesh.triangles].reshape(-1, 8)
         if proto.path not in out:
-            prim = stage.GetPrimAtPath(proto.path)
-            attr = prim.GetAttribute("foliage:tau") if prim else None
-            tau = attr.Get() if attr else None
+            tau = taus[proto.path]
             if tau is None or not (math.isfinite(float(tau)) and float(tau) >= 0):
                 raise InputError(f"@{path}@: <{proto.path}> has s_max on its leaves but no valid foliage:tau "
                                  f"(got {tau!r}); the smax bake writes both. {rerun}")

@@ -71,3 +71,15 @@ def read_mesh_primvars(path: str | os.PathLike, names: list[str], mesh_paths: li
                 mesh=mesh_path, name=name, values=values, interpolation=str(pv.GetInterpolation()), element_size=element_size
             )
     return out
+
+
+def read_attribute(path: str | os.PathLike, name: str, prim_paths: list[str]) -> dict[str, object]:
+    """``{prim path: value}`` of attribute ``name`` (e.g. ``foliage:tau``) for every listed prim; None where
+    the prim or the attribute is missing or has no value."""
+    stage = open_stage(path)
+    out: dict[str, object] = {}
+    for prim_path in dict.fromkeys(prim_paths):
+        prim = stage.GetPrimAtPath(prim_path)
+        attr = prim.GetAttribute(name) if prim else None
+        out[prim_path] = attr.Get() if attr else None
+    return out
