@@ -175,6 +175,64 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
     run(body)
 
 
+@cli.command()
+@SCENE
+@click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True,
+              help="Grid nodes along the longest edge of each tree's foliage bounds (as for lb/spp).")
+@click.option("--bases", type=click.Choice(["sun", "all"]), default="sun", show_default=True,
+              help="LB boundary conditions to plan for: the scene's sun, or all 18 relighting bases (x RGB).")
+@click.option("--depth", type=click.Choice(["rays", "grid"]), default="rays", show_default=True,
+              help="SPP depth path to plan for (rays cost grows with leaves x --rays-per-leaf x directions).")
+@click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True)
+@click.option("--reference-paths", type=click.IntRange(min=1), default=1_000_000, show_default=True,
+              help="Monte Carlo sun paths to plan for.")
+@common_options
+def plan(scene: Path, resolution: int, bases: str, depth: str, rays_per_leaf: int, reference_paths: int,
+         as_json: bool, quiet: bool, verbose: int) -> None:
+    """Show what a bake of SCENE would do: grids, work, estimated seconds and memory. Writes nothing.
+
+    Per tree: the grid each stage builds, the LB right-hand sides, sweeps and
+    memory (the figure that decides whether --resolution 128 --bases all
+    fits: ~166 bytes per node and right-hand side), which s_max path runs,
+    and estimated seconds per stage. Seconds are work divided by rates
+    measured on a 2-core machine (listed in foliage_tools/pipeline/plan.py):
+    scale them to yours. Memory does not depend on the machine.
+
+    \b
+    Example:
+      foliage plan examples/tree_small.usda --resolution 128 --bases all
+    """
+    from foliage_tools.pipeline.plan import PlanParams
+    from foliage_tools.pipeline.plan import plan as do_plan
+
+    def body() -> int:
+        setup_logging(verbose, quiet)
+        params = PlanParams(resolution=resolution, bases=bases, depth=depth, rays_per_leaf=rays_per_leaf,
+                            reference_paths=reference_paths)
+
+        def render(report) -> None:
+            s = report.stats
+            table = Table(title=f"plan for {scene}: resolution {s['resolution']}, bases {s['bases']}, depth {s['depth']}")
+            for col in ("prototype", "inst.", "leaves", "grid", "LB rhs", "sweeps", "LB memory", "smax path"):
+                table.add_column(col, justify="left" if col == "prototype" else "right", overflow="fold")
+            for p in s["prototypes"]:
+                table.add_row(escape(p["path"]), str(p["instances"]), str(p["leaves"]), "x".join(map(str, p["grid"])),
+                              str(p["lb_rhs"]), str(p["lb_sweeps_estimate"]), f"{p['lb_memory_bytes'] / 1e9:.2f} GB",
+                              p["smax_path"])
+            console.stdout.print(table)
+            t = s["seconds_estimate"]
+            times = Table(title="estimated seconds (rates measured on a 2-core machine; scale to yours)")
+            for col in ("density", "smax", "spp", "lb", "reference", "LB peak memory"):
+                times.add_column(col, justify="right")
+            times.add_row(*(f"{t[k]:.3g}" for k in ("density", "smax", "spp", "lb", "reference")),
+                          f"{s['peak_memory_bytes'] / 1e9:.2f} GB")
+            console.stdout.print(times)
+
+        return execute(lambda progress: do_plan(scene, params), as_json=as_json, quiet=quiet, render=render)
+
+    run(body)
+
+
 def _add_commands() -> None:
     from foliage_tools.cli.bakes import bake, bench, lb, reference, smax, spp
     from foliage_tools.cli.preview import preview

@@ -11,7 +11,7 @@ from tests.integration.test_cli_errors import foliage
 SCHEMA = json.loads((Path(__file__).resolve().parents[2] / "schemas" / "json" / "report.schema.json").read_text())
 
 
-@pytest.mark.parametrize("command", ["inspect", "validate", "density", "smax", "reference", "bench", "lb", "spp"])
+@pytest.mark.parametrize("command", ["inspect", "validate", "plan", "density", "smax", "reference", "bench", "lb", "spp"])
 def test_json_report_matches_schema(command, simple_tree, tmp_path):
     args = [command, simple_tree, "--json"]
     if command == "density":

@@ -1,0 +1,113 @@
+"""``foliage plan``: what a bake would do, with estimated time and memory; writes nothing.
+
+Reads the scene (the only expensive step) and, per prototype with leaves,
+works out the grid each stage would build and the work and memory that
+follow from it. The seconds are *estimates*: work counts divided by rates
+measured by ``make bench`` on the 2-core development machine (the constants
+below, each with the benchmark row it comes from). Scale them by how your
+machine compares; the memory figures do not depend on the machine.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools.errors import UsageError
+from foliage_tools.geometry.voxelize import grid_for_bounds
+from foliage_tools.lighting.envelope import AUTO_FAST_THRESHOLD
+from foliage_tools.pipeline.report import Report
+from foliage_tools.scene.read import read_scene
+
+#: LB node x right-hand-side updates per second, many (>= 19) / few right-hand sides
+#: (bench_lb_issue.py: 64^3 fused sweep, 57 rhs ~100 MLUPS after the parity split; 3 rhs ~45).
+LB_MLUPS_MANY, LB_MLUPS_FEW = 90e6, 45e6
+#: LB sweeps to tolerance 1e-5 per node of the longest grid edge (bench_lb_issue.py bake rows:
+#: 68 sweeps at 66 nodes, 132 at 130, physical absorption; lower absorption needs more).
+LB_SWEEPS_PER_EDGE = 1.05
+#: Bytes held per node per LB right-hand side: 2 fields of 18 float32 directions (72 B) plus outputs (~0.3 field).
+LB_BYTES_PER_NODE_RHS = 2.3 * 72
+#: Seconds per leaf of the area density kernel (bench_density.py: 100k leaves 0.45 s).
+DENSITY_S_PER_LEAF = 4.5e-6
+#: smax: reference pairs per second (O(N^2), bench_smax.py: 40k leaves 8.2 s) and fast path per leaf (0.16 s).
+SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 1.95e8, 4.0e-6
+#: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 17 directions in 56 s).
+SPP_RAYS_PER_S = 2.4e5
+#: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py).
+REFERENCE_PATHS_PER_S = 3.8e6
+
+
+@dataclass(frozen=True)
+class PlanParams:
+    resolution: int = 64
+    bases: str = "sun"
+    depth: str = "rays"
+    rays_per_leaf: int = 16
+    directions: int = 16
+    reference_paths: int = 1_000_000
+
+    def __post_init__(self) -> None:
+        if not (4 <= self.resolution <= 512):
+            raise UsageError(f"--resolution must be between 4 and 512, got {self.resolution}.")
+        if self.bases not in ("sun", "all"):
+            raise UsageError(f"--bases must be sun or all, got {self.bases!r}.")
+        if self.depth not in ("rays", "grid"):
+            raise UsageError(f"--depth must be rays or grid, got {self.depth!r}.")
+        if self.rays_per_leaf < 1 or self.directions < 1 or self.reference_paths < 1:
+            raise UsageError("--rays-per-leaf, --directions and --reference-paths must be >= 1.")
+
+
+def plan(path: Path, params: PlanParams) -> Report:
+    report = Report(command="plan", inputs=[str(path)])
+    scene, warnings = read_scene(path)
+    report.warnings.extend(warnings)
+    protos = []
+    total_s = {"density": 0.0, "smax": 0.0, "spp": 0.0, "lb": 0.0}
+    peak = 0.0
+    for i, proto in enumerate(scene.prototypes):
+        n = int(proto.leaves.count)
+        if not n:
+            continue
+        lo, hi = proto.bounds(leaves_only=True)
+        grid = grid_for_bounds(lo, hi, resolution=params.resolution)
+        nodes = int(np.prod(grid.shape))
+        rhs = 3 * (18 if params.bases == "all" else 1)
+        sweeps = LB_SWEEPS_PER_EDGE * max(grid.shape)
+        lb_s = sweeps * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW)
+        lb_bytes = nodes * rhs * LB_BYTES_PER_NODE_RHS
+        fast = n >= AUTO_FAST_THRESHOLD
+        smax_s = n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S
+        instances = len(scene.instances_of(i))
+        spp_s = n * DENSITY_S_PER_LEAF
+        if params.depth == "rays":
+            spp_s += instances * n * params.rays_per_leaf * (params.directions + 1) / SPP_RAYS_PER_S
+        est = {"density": n * DENSITY_S_PER_LEAF, "smax": smax_s, "spp": spp_s, "lb": lb_s}
+        for k, v in est.items():
+            total_s[k] += v
+        peak = max(peak, lb_bytes)
+        protos.append({
+            "path": proto.path, "leaves": n, "instances": instances, "grid": list(grid.shape),
+            "voxel_size": grid.voxel_size, "lb_rhs": rhs, "lb_sweeps_estimate": round(sweeps),
+            "lb_memory_bytes": lb_bytes, "smax_path": "fast" if fast else "reference",
+            "seconds_estimate": est,
+        })
+    if not protos:
+        raise UsageError(f"@{path}@ has no leaves to bake: no leaf meshes were found (see `foliage inspect`).")
+    avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    if peak > avail:
+        report.warnings.append(
+            f"the LB bake would hold ~{peak / 1e9:.1f} GB, more than the {avail / 1e9:.1f} GB of memory free now: "
+            "lower --resolution, or use --bases sun (1/18 of the memory)."
+        )
+    leaves_total = sum(scene.prototypes[inst.prototype].leaves.count for inst in scene.instances)
+    total_s["reference"] = params.reference_paths / REFERENCE_PATHS_PER_S
+    report.stats = {
+        "resolution": params.resolution, "bases": params.bases, "depth": params.depth,
+        "prototypes": protos, "instances": len(scene.instances), "leaves_total": int(leaves_total),
+        "seconds_estimate": total_s, "peak_memory_bytes": peak,
+        "note": "seconds are estimates from rates measured on a 2-core machine (foliage_tools/pipeline/plan.py)",
+    }
+    return report.finish()

@@ -1,0 +1,32 @@
+"""``foliage plan``: grids and memory that match what the bakes build, and nothing written."""
+
+import json
+from pathlib import Path
+
+from tests.integration.test_cli_errors import foliage
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
+
+
+def test_plan_grid_matches_the_density_bake_and_writes_nothing(tmp_path):
+    before = sorted(p.name for p in EXAMPLE.parent.iterdir())
+    r = foliage("plan", EXAMPLE, "--resolution", "16", "--json")
+    assert r.returncode == 0, r.stderr
+    plan = json.loads(r.stdout)["stats"]["prototypes"][0]
+    d = foliage("density", EXAMPLE, "-o", tmp_path / "d.usda", "--resolution", "16", "--json")
+    assert d.returncode == 0, d.stderr
+    dens = json.loads(d.stdout)["stats"]["prototypes"][0]
+    assert plan["grid"] == dens["shape"]  # the grid lb/spp would build is the density grid
+    assert sorted(p.name for p in EXAMPLE.parent.iterdir()) == before
+    assert json.loads(r.stdout)["outputs"] == []
+
+
+def test_plan_lb_memory_follows_the_right_hand_sides():
+    sun = json.loads(foliage("plan", EXAMPLE, "--resolution", "32", "--json").stdout)["stats"]
+    all_ = json.loads(foliage("plan", EXAMPLE, "--resolution", "32", "--bases", "all", "--json").stdout)["stats"]
+    p_sun, p_all = sun["prototypes"][0], all_["prototypes"][0]
+    assert (p_sun["lb_rhs"], p_all["lb_rhs"]) == (3, 54)  # RGB x (sun | 18 Kronecker bases)
+    nodes = p_sun["grid"][0] * p_sun["grid"][1] * p_sun["grid"][2]
+    assert p_sun["lb_memory_bytes"] >= 2 * 72 * 3 * nodes  # two fields of 18 float32 per rhs at least
+    assert p_all["lb_memory_bytes"] == 18 * p_sun["lb_memory_bytes"]
+    assert all_["seconds_estimate"]["lb"] > 5 * sun["seconds_estimate"]["lb"]  # 18x the work, a faster kernel per rhs
