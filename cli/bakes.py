@@ -279,8 +279,9 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
 @click.option("--directions", type=click.IntRange(min=2), default=16, show_default=True, help="Sample directions for the G-factor and the sky (even; the paper used 16-22).")
 @click.option("--no-gfactor", is_flag=True, help="Plain SPP only: skip the sppg primvars (G is still written as a grid).")
 @click.option("--refine", is_flag=True, help="Integrate the refined radiance of shinya2013 appendix A.1 for the sun's scattered light.")
-@click.option("--depth", type=click.Choice(["rays", "grid"]), default="rays", show_default=True,
+@click.option("--depth", type=click.Choice(["auto", "rays", "grid"]), default="auto", show_default=True,
               help="How each leaf's optical depth toward the sun and the sample directions is measured (shinya2013 eq. 29). "
+                   "auto: rays for scenes of up to 50k leaves (summed over instances), grid above. "
                    "rays: count the leaves crossed through the actual leaf triangles (Embree), own leaf skipped, averaged over "
                    "--rays-per-leaf points on each leaf; sees the leaves' real orientations and clumping; costs "
                    "rays-per-leaf x (2 x directions + 2) rays per leaf per instance (about 1 ms per leaf at the defaults: a generated "

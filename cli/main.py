@@ -181,8 +181,8 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
               help="Grid nodes along the longest edge of each tree's foliage bounds (as for lb/spp).")
 @click.option("--bases", type=click.Choice(["sun", "all"]), default="sun", show_default=True,
               help="LB boundary conditions to plan for: the scene's sun, or all 18 relighting bases (x RGB).")
-@click.option("--depth", type=click.Choice(["rays", "grid"]), default="rays", show_default=True,
-              help="SPP depth path to plan for (rays cost grows with leaves x --rays-per-leaf x directions).")
+@click.option("--depth", type=click.Choice(["auto", "rays", "grid"]), default="auto", show_default=True,
+              help="SPP depth path to plan for, as `foliage spp --depth` (rays cost grows with leaves x --rays-per-leaf x directions).")
 @click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True)
 @click.option("--reference-paths", type=click.IntRange(min=1), default=1_000_000, show_default=True,
               help="Monte Carlo sun paths to plan for.")

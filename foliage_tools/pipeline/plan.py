@@ -20,6 +20,7 @@ from foliage_tools.errors import UsageError
 from foliage_tools.geometry.voxelize import grid_for_bounds
 from foliage_tools.lighting.envelope import AUTO_FAST_THRESHOLD
 from foliage_tools.pipeline.report import Report
+from foliage_tools.pipeline.spp import AUTO_RAYS_MAX_LEAVES, DEPTH_PATHS
 from foliage_tools.scene.read import read_scene
 
 #: LB node x right-hand-side updates per second, many (>= 19) / few right-hand sides
@@ -34,8 +35,8 @@ LB_BYTES_PER_NODE_RHS = 2.3 * 72
 DENSITY_S_PER_LEAF = 4.5e-6
 #: smax: reference pairs per second (O(N^2), bench_smax.py: 40k leaves 8.2 s) and fast path per leaf (0.16 s).
 SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 1.95e8, 4.0e-6
-#: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 17 directions in 56 s).
-SPP_RAYS_PER_S = 2.4e5
+#: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 34 in 44-56 s).
+SPP_RAYS_PER_S = 5.5e5
 #: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py).
 REFERENCE_PATHS_PER_S = 3.8e6
 
@@ -44,7 +45,7 @@ REFERENCE_PATHS_PER_S = 3.8e6
 class PlanParams:
     resolution: int = 64
     bases: str = "sun"
-    depth: str = "rays"
+    depth: str = "auto"
     rays_per_leaf: int = 16
     directions: int = 16
     reference_paths: int = 1_000_000
@@ -54,8 +55,8 @@ class PlanParams:
             raise UsageError(f"--resolution must be between 4 and 512, got {self.resolution}.")
         if self.bases not in ("sun", "all"):
             raise UsageError(f"--bases must be sun or all, got {self.bases!r}.")
-        if self.depth not in ("rays", "grid"):
-            raise UsageError(f"--depth must be rays or grid, got {self.depth!r}.")
+        if self.depth not in DEPTH_PATHS:
+            raise UsageError(f"--depth must be one of {', '.join(DEPTH_PATHS)}, got {self.depth!r}.")
         if self.rays_per_leaf < 1 or self.directions < 1 or self.reference_paths < 1:
             raise UsageError("--rays-per-leaf, --directions and --reference-paths must be >= 1.")
 
@@ -64,6 +65,8 @@ def plan(path: Path, params: PlanParams) -> Report:
     report = Report(command="plan", inputs=[str(path)])
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
+    leaves_total = sum(scene.prototypes[inst.prototype].leaves.count for inst in scene.instances)
+    depth = params.depth if params.depth != "auto" else ("rays" if leaves_total <= AUTO_RAYS_MAX_LEAVES else "grid")
     protos = []
     total_s = {"density": 0.0, "smax": 0.0, "spp": 0.0, "lb": 0.0}
     peak = 0.0
@@ -82,8 +85,8 @@ def plan(path: Path, params: PlanParams) -> Report:
         smax_s = n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S
         instances = len(scene.instances_of(i))
         spp_s = n * DENSITY_S_PER_LEAF
-        if params.depth == "rays":
-            spp_s += instances * n * params.rays_per_leaf * (params.directions + 1) / SPP_RAYS_PER_S
+        if depth == "rays":
+            spp_s += instances * n * params.rays_per_leaf * (2 * params.directions + 2) / SPP_RAYS_PER_S
         est = {"density": n * DENSITY_S_PER_LEAF, "smax": smax_s, "spp": spp_s, "lb": lb_s}
         for k, v in est.items():
             total_s[k] += v
@@ -102,10 +105,9 @@ def plan(path: Path, params: PlanParams) -> Report:
             f"the LB bake would hold ~{peak / 1e9:.1f} GB, more than the {avail / 1e9:.1f} GB of memory free now: "
             "lower --resolution, or use --bases sun (1/18 of the memory)."
         )
-    leaves_total = sum(scene.prototypes[inst.prototype].leaves.count for inst in scene.instances)
     total_s["reference"] = params.reference_paths / REFERENCE_PATHS_PER_S
     report.stats = {
-        "resolution": params.resolution, "bases": params.bases, "depth": params.depth,
+        "resolution": params.resolution, "bases": params.bases, "depth": depth,
         "prototypes": protos, "instances": len(scene.instances), "leaves_total": int(leaves_total),
         "seconds_estimate": total_s, "peak_memory_bytes": peak,
         "note": "seconds are estimates from rates measured on a 2-core machine (foliage_tools/pipeline/plan.py)",

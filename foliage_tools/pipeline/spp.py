@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +67,11 @@ from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, stage
 _WORKERS = os.cpu_count() or 1
 
 #: The depth paths of ``--depth``.
-DEPTH_PATHS = ("grid", "rays")
+DEPTH_PATHS = ("auto", "grid", "rays")
+#: ``--depth auto`` counts rays while the scene has at most this many leaves (summed over instances) and
+#: integrates the grid above: rays cost ~1 ms per leaf and instance at the defaults (bench_sppg.py: 50k leaves
+#: 44-56 s; 500k would be ~10 min against 7 s for the grid).
+AUTO_RAYS_MAX_LEAVES = 50_000
 
 
 @dataclass(frozen=True)
@@ -84,10 +88,11 @@ class SppParams:
     """False (``--no-gfactor``): the SPP bake without G; the sppg primvars are then not written."""
     refine: bool = False
     """Integrate the refined radiance of appendix A.1 for the sun's scattered light."""
-    depth: str = "rays"
-    """``rays``: count leaf crossings; ``grid``: integrate the leaf-area density, own leaf removed (module docstring).
-    Rays are the default: against the Monte Carlo reference they gave the lower total-irradiance error on both
-    test crowns (benchmarks/bench_sppg.py prints the comparison)."""
+    depth: str = "auto"
+    """``rays``: count leaf crossings; ``grid``: integrate the leaf-area density, own leaf removed (module docstring);
+    ``auto``: rays up to ``AUTO_RAYS_MAX_LEAVES`` leaves in the scene, grid above. Rays where affordable: against the
+    Monte Carlo reference they gave the lower total-irradiance error on both test crowns (benchmarks/bench_sppg.py
+    prints the comparison)."""
     rays_per_leaf: int = 16
     """With ``depth="rays"``: origins per leaf (seeded, uniform over its area); counts are averaged."""
     seed: int = 0
@@ -275,7 +280,16 @@ def bake_prototype(
     )
 
 
+def resolve_depth(scene: Scene, params: SppParams) -> SppParams:
+    """``depth="auto"`` made concrete for this scene (``AUTO_RAYS_MAX_LEAVES``); other choices unchanged."""
+    if params.depth != "auto":
+        return params
+    leaves = sum(scene.prototypes[inst.prototype].leaves.count for inst in scene.instances)
+    return replace(params, depth="rays" if leaves <= AUTO_RAYS_MAX_LEAVES else "grid")
+
+
 def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], progress: Progress) -> list[SppBake]:
+    params = resolve_depth(scene, params)
     baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
     progress.step(f"SPP/SPPG for {len(baked)} prototype(s), {params.depth} depths", total=len(baked))
     densities = {i: compute_density(p, DensityParams(resolution=params.resolution, method="area")) for i, p in baked}
@@ -306,6 +320,7 @@ def _vertex_values(proto: Prototype, per_leaf: np.ndarray, type_: str, name: str
 def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | None = None) -> Report:
     progress = progress or Silent()
     report, scene, sun = begin_bake("spp", path, out, params.sun, progress)
+    params = resolve_depth(scene, params)
     edits = LayerEdits()
     protos = []
     for bake in bake_spp(scene, sun, params, report.warnings, progress):

@@ -1,6 +1,7 @@
 """``foliage spp`` end to end: grids and primvars of DESIGN.md section 3."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -66,3 +67,17 @@ def test_grid_depth_path_is_a_flag_and_bad_values_are_usage_errors(tmp_path):
 def test_sun_below_the_horizon_is_a_usage_error(tmp_path):
     r = foliage("spp", EXAMPLE, "-o", tmp_path / "o.usda", "--sun", "0,-10", "--resolution", "8")
     assert r.returncode == 2 and "below the horizon" in r.stderr
+
+
+def test_depth_auto_counts_rays_on_small_scenes_and_integrates_the_grid_on_large_ones(monkeypatch):
+    from foliage_tools.lighting.optics import parse_leaf_optics
+    from foliage_tools.pipeline import spp as spp_mod
+    from foliage_tools.scene.read import read_scene
+
+    scene, _ = read_scene(Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda")
+    params = spp_mod.SppParams(optics=parse_leaf_optics(None))
+    assert params.depth == "auto"
+    assert spp_mod.resolve_depth(scene, params).depth == "rays"  # 1500 leaves
+    monkeypatch.setattr(spp_mod, "AUTO_RAYS_MAX_LEAVES", 1000)
+    assert spp_mod.resolve_depth(scene, params).depth == "grid"
+    assert spp_mod.resolve_depth(scene, replace(params, depth="rays")).depth == "rays"  # explicit choice kept
