@@ -134,7 +134,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit, prange
 
-from foliage_tools.errors import UsageError
+from foliage_tools.errors import EXIT_INTERNAL, FoliageError, UsageError
 from foliage_tools.lighting.collision import Medium, brown, omega, unit_moving_block
 from foliage_tools.lighting.lattice import DIRECTIONS, OPPOSITE, UNIT_DIRECTIONS, barycentric_weights
 
@@ -143,6 +143,7 @@ __all__ = [
     "LBParams",
     "LBProblem",
     "LBResult",
+    "LBNumericalError",
     "LatticeStabilityError",
     "ambient_boundary",
     "base_boundary",
@@ -185,6 +186,17 @@ def _parity_blocks(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 class LatticeStabilityError(UsageError, ValueError):
     """rho * sigma_t > 1 somewhere: the explicit lattice update would be unstable."""
+
+
+class LBNumericalError(FoliageError, ArithmeticError):
+    """The solver produced non-finite values (raised instead of returning them; exit code 3, not bad input)."""
+
+    exit_code = EXIT_INTERNAL
+
+
+#: Largest per-sweep ratio q an extrapolation jump f + (f - f_prev) q / (1 - q) uses (a jump of at most 199x the
+#: last change: a larger one, from a ratio that only looked settled, once overflowed float32 at 64^3 with 18 bases).
+_MAX_EXTRAPOLATION_Q = 0.995
 
 
 # --------------------------------------------------------------------------- boundaries
@@ -740,6 +752,7 @@ def _p_update(p, r, v, beta, omega):  # pragma: no cover - compiled
 
 
 def _safe_div(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a / b, 0 where b == 0 (both finite: callers check the field for non-finite values first)."""
     return np.divide(a, b, out=np.zeros(np.broadcast(a, b).shape), where=b != 0)
 
 
@@ -888,6 +901,8 @@ def _iterate(
     checks: list[tuple[int, float]] = []
     prev_res: np.ndarray | None = None
     ratios: list[np.ndarray] = []
+    allowed = np.ones((op.C, op.K), bool)  # right-hand sides extrapolation may still jump
+    jumped: np.ndarray | None = None  # residual just before the last jump
     for t in range(1, budget + 1):
         every_sweep = extrapolate and t >= warm
         check = every_sweep or t % every == 0 or t == budget
@@ -897,22 +912,32 @@ def _iterate(
             prev_res = None
             continue
         res = r
+        if not np.all(np.isfinite(res)):
+            raise LBNumericalError(
+                "the lattice field became non-finite"
+                + (" after an extrapolation jump; use the solver 'iterate' or 'bicgstab'" if extrapolate else "")
+                + f" (sweep {t}). This is a bug if it happens with plain iteration: please report it with the input."
+            )
         now = float(res.max())
         history.append(now)
         checks.append((t, now))
         if now < tol:
             return f, t, res, False
         if every_sweep:
+            if jumped is not None:
+                # a jump that did not lower the residual says the one-mode model is wrong here: stop jumping
+                allowed &= ~(res > jumped)
+                jumped = None
             if prev_res is not None:
                 ratios = [*ratios[-2:], _safe_div(res, prev_res)]
             prev_res = res
             if len(ratios) == 3:
                 q = np.stack(ratios)
-                ok = (q.max(axis=0) < 1.0) & (q.min(axis=0) > 0.0) & (q.max(axis=0) - q.min(axis=0) < 1e-3)
+                ok = allowed & (q.max(axis=0) < 1.0) & (q.min(axis=0) > 0.0) & (q.max(axis=0) - q.min(axis=0) < 1e-3)
                 if ok.any():
-                    qq = np.minimum(q[-1], 0.9999)
+                    qq = np.minimum(q[-1], _MAX_EXTRAPOLATION_Q)
                     _extrapolate(op.vec(f), op.vec(out), op.expand(np.where(ok, qq / (1.0 - qq), 0.0)))
-                    ratios, prev_res = [], None
+                    ratios, prev_res, jumped = [], None, np.where(ok, res, np.inf)
         if switch_after is not None and t >= warm:
             back = [c for c in checks if c[0] <= t - 8]
             if back:
@@ -1030,6 +1055,9 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
             if res.max() < tol:
                 break
     loop_seconds = time.perf_counter() - t_loop
+    if not np.all(np.isfinite(res)):
+        raise LBNumericalError(f"the lattice solve ended with a non-finite residual (solver {'+'.join(used)}); "
+                               "use the solver 'iterate', and please report the input.")
     inflow, outflow, absorbed = _balance(f, op.rho, op.mat, op.A, op.sig_a, op.inflow_mask)
     energy = np.ascontiguousarray(f.sum(axis=2).transpose(0, 1, 3, 4, 2))  # (nx, ny, nz, K, C)
     full = op.from_row(f) if params.keep_f else None
