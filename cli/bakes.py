@@ -175,7 +175,8 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed
 @click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True, help="Lattice nodes along the longest edge of each prototype's foliage bounds.")
 @click.option("--bases", type=click.Choice(["sun", "all"]), default="sun", show_default=True,
               help="sun: the geist2008 sun boundary for the scene's sun (grid lbSun); all: the 18 Kronecker bases + ambient "
-                   "of steele2010 3.1 for relighting (grids lbBase01..18, lbAmbient).")
+                   "of steele2010 3.1 for relighting (grids lbBase01..18, lbAmbient; 18x the memory and work of sun: "
+                   "~166 bytes per node and right-hand side, 128^3 ~16 GB; `foliage plan` shows it first).")
 @click.option("--tolerance", type=float, default=1e-5, show_default=True, help="Relative residual at which the steady state is accepted.")
 @click.option("--solver", type=click.Choice(["auto", "iterate", "bicgstab", "extrapolate"]), default="auto", show_default=True,
               help="auto: plain iteration, switching to BiCGSTAB when convergence is slow (low absorption).")
@@ -188,8 +189,9 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
     """Lattice-Boltzmann light bake (geist2008, steele2010) per unique prototype.
 
     Voxelizes each prototype's leaves (exact leaf-area density), solves the
-    D3Q19 photon transport to a steady state (with and without scattering, to
-    separate direct from scattered light) and writes the photon energy density
+    D3Q19 photon transport to a steady state (starting from the never-scattered
+    light, computed exactly in one pass, which also separates direct from
+    scattered light) and writes the photon energy density
     grids to OUT.vdb, primvars:foliage:lbIndirect (scattered irradiance at the
     leaf vertices for the scene's sun) and per-leaf E_direct / E_scattered
     (primvars:foliage:lb:direct, :scattered).

@@ -41,6 +41,23 @@ SPP_RAYS_PER_S = 5.5e5
 REFERENCE_PATHS_PER_S = 3.8e6
 
 
+def available_memory() -> float:
+    """Bytes the system can give a new allocation now: MemAvailable (Linux), else free physical pages."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024.0
+    except OSError:
+        pass
+    return float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+
+
+def lb_memory(shape, rhs: int) -> float:
+    """Bytes an LB solve holds: ``LB_BYTES_PER_NODE_RHS`` per node and right-hand side (plain iteration)."""
+    return float(np.prod(shape)) * rhs * LB_BYTES_PER_NODE_RHS
+
+
 @dataclass(frozen=True)
 class PlanParams:
     resolution: int = 64
@@ -80,7 +97,7 @@ def plan(path: Path, params: PlanParams) -> Report:
         rhs = 3 * (18 if params.bases == "all" else 1)
         sweeps = LB_SWEEPS_PER_EDGE * max(grid.shape)
         lb_s = sweeps * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW)
-        lb_bytes = nodes * rhs * LB_BYTES_PER_NODE_RHS
+        lb_bytes = lb_memory(grid.shape, rhs)
         fast = n >= AUTO_FAST_THRESHOLD
         smax_s = n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S
         instances = len(scene.instances_of(i))
@@ -99,7 +116,7 @@ def plan(path: Path, params: PlanParams) -> Report:
         })
     if not protos:
         raise UsageError(f"@{path}@ has no leaves to bake: no leaf meshes were found (see `foliage inspect`).")
-    avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    avail = available_memory()
     if peak > avail:
         report.warnings.append(
             f"the LB bake would hold ~{peak / 1e9:.1f} GB, more than the {avail / 1e9:.1f} GB of memory free now: "

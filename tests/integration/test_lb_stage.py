@@ -64,3 +64,14 @@ def test_bad_lb_options_are_usage_errors(tmp_path):
     assert r.returncode == 2 and "--tolerance" in r.stderr
     with pytest.raises(Exception, match="absorption"):
         LBBakeParams(optics=parse_leaf_optics(None), absorption_scale=0)
+
+
+def test_a_bake_that_cannot_fit_in_memory_stops_before_solving_and_writes_nothing(tmp_path, monkeypatch):
+    from foliage_tools.errors import UsageError
+    from foliage_tools.pipeline import lb as lb_stage
+
+    monkeypatch.setattr(lb_stage, "available_memory", lambda: 1e3)  # 1 kB free: no grid fits
+    out = tmp_path / "lb.usda"
+    with pytest.raises(UsageError, match=r"needs ~.* GB.*--resolution.*foliage plan"):
+        run_lb(EXAMPLE, out, LBBakeParams(optics=parse_leaf_optics(None), resolution=8))
+    assert list(tmp_path.iterdir()) == []
