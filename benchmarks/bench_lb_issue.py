@@ -73,21 +73,11 @@ from foliage_tools.lighting.lb import (
     solve,
     sun_boundary,
 )
+from foliage_tools.pipeline.plan import available_memory
 
 SUN = (0.3, 0.2, 1.0)
 TABLE1_G = (-0.120, 0.091, -0.333)
 BYTES_PER_UPDATE = 19 * 4 * 2  # 19 float32 densities read + written per node x rhs update
-
-
-def mem_available() -> float:
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return float(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return float("inf")
 
 
 def median_seconds(fn, repeats: int) -> float:
@@ -156,7 +146,7 @@ def kernel_table(repeats: int, bw: float) -> None:
             shape = (n, n, n)
             field = n**3 * 18 * nrhs * 4
             note = ""
-            if 2.5 * field > min(mem_available(), 12e9):
+            if 2.5 * field > min(available_memory(), 12e9):
                 shape = (n // 4, n, n)
                 note = " (slab: full field would be %.1f GB)" % (field / 1e9)
             op = _Operator(LBProblem(np.full(shape, 0.5), _medium(C), bounds()), "float32")
@@ -223,7 +213,7 @@ def bake_table() -> None:
     shapes = {64: (60, 61, 66), 128: (117, 119, 130)}
     for res in (64, 128):
         need = 2.3 * np.prod(shapes[res]) * 72 * 54
-        avail = mem_available()
+        avail = available_memory()
         if need > avail:
             print(f"   resolution {res}: SKIPPED, needs ~{need / 1e9:.1f} GB, MemAvailable {avail / 1e9:.1f} GB")
             continue
@@ -245,7 +235,7 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-bakes", action="store_true")
     args = ap.parse_args(argv)
     print(f"bench_lb_issue: numba {numba.__version__}, {numba.get_num_threads()} threads, {os.cpu_count()} CPUs, "
-          f"load average {os.getloadavg()[0]:.2f}, MemAvailable {mem_available() / 1e9:.1f} GB")
+          f"load average {os.getloadavg()[0]:.2f}, MemAvailable {available_memory() / 1e9:.1f} GB")
     t0 = time.perf_counter()
     bw = triad_table(args.repeats)
     kernel_table(args.repeats, bw)
