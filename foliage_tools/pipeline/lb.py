@@ -27,7 +27,7 @@ from foliage_tools.errors import UsageError
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.geometry.voxelize import GridSpec
 from foliage_tools.lighting import lb
-from foliage_tools.lighting.collision import brown, density_from_lad, leaf_medium
+from foliage_tools.lighting.collision import Medium, brown, density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import compute_density, vdb_path, volume_path
@@ -114,6 +114,8 @@ class LBPrototypeBake:
     """(L, 3) per-leaf E_scattered."""
     result: lb.LBResult
     seconds: float
+    medium: Medium
+    """Green-node coefficients the lattice was solved with."""
 
 
 def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: LBBakeParams) -> LBPrototypeBake:
@@ -154,7 +156,7 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
     cos = np.abs(proto.leaves.normals @ sun_local)
     e_direct = cos[:, None] * sample_trilinear(sun_un, grid, proto.leaves.centers)
     return LBPrototypeBake(index, grid, total, unscattered, sun_total, sun_un,
-                           e_direct, e_scattered, res, dens.seconds + res.seconds + t_un)
+                           e_direct, e_scattered, res, dens.seconds + res.seconds + t_un, medium)
 
 
 def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], progress: Progress) -> list[LBPrototypeBake]:
@@ -203,6 +205,12 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "foliage:residual": float(r.residual),
             "foliage:seconds": float(bake.seconds),
             "foliage:version": __version__,
+            # the medium the grids were solved with (provenance, and what a consumer needs to recompute the
+            # never-scattered part of a base with lb.unscattered_energy: rho * sigma_t per node)
+            "foliage:lb:sigmaA": tuple(float(v) for v in bake.medium.sigma_a),
+            "foliage:lb:sigmaS": tuple(float(v) for v in bake.medium.sigma_s),
+            "foliage:lb:g": tuple(float(v) for v in bake.medium.g),
+            "foliage:lb:absorptionScale": float(params.absorption_scale),
         }
         vol = volume_path(proto)
         edits.volumes.append(VolumeEdit(path=vol, vdb_file=vdb_path(out, scene, bake.index), grids=tuple(grids), attributes=attrs))

@@ -50,6 +50,14 @@ def test_sun_bake_writes_grid_and_primvars(tmp_path):
     assert 0 < scattered.mean() < direct.mean()
     # green leaves scatter most in G (geist2008 Table 1 optics)
     assert scattered[:, 1].mean() > scattered[:, 0].mean() > scattered[:, 2].mean()
+    # the medium the grids were solved with is recorded on the volume (sigma_a + sigma_s = 1 at absorption scale 1)
+    from foliage_tools.lighting.collision import leaf_medium
+
+    vol = stage.GetPrimAtPath("/Tree/FoliageLighting")
+    med = leaf_medium(parse_leaf_optics(None), absorption_scale=1.0)
+    for name, expect in (("sigmaA", med.sigma_a), ("sigmaS", med.sigma_s), ("g", med.g)):
+        np.testing.assert_allclose(tuple(vol.GetAttribute(f"foliage:lb:{name}").Get()), expect, rtol=1e-6)
+    assert vol.GetAttribute("foliage:lb:absorptionScale").Get() == 1.0
     assert foliage("validate", tmp_path / "l.usda").returncode == 0
 
 
