@@ -6,7 +6,7 @@ draws the same direct term (shadow-mapped sun, sky, ground bounce):
 | method | scattered irradiance E_scattered read from the leaf meshes | written by |
 |---|---|---|
 | ``direct`` | none | -- |
-| ``lb`` | ``primvars:foliage:lb:scattered`` (uniform) or ``primvars:foliage:lbIndirect`` (vertex) | ``foliage lb`` |
+| ``lb`` | relit per instance for the current sun from the ``lbBase01..18`` grids of a ``--bases all`` bake (steele2010 sec. 3.1, ``load_lb_bases``); else ``primvars:foliage:lb:scattered`` (uniform) or ``primvars:foliage:lbIndirect`` (vertex), the baked sun only | ``foliage lb`` |
 | ``spp`` | ``primvars:foliage:spp:scattered`` (uniform) or ``primvars:foliage:sppIrradiance`` (vertex) | ``foliage spp`` |
 | ``smax`` | evaluated in the vertex shader (boulanger2008 Algorithms 8-14) from ``primvars:foliage:smax`` (uniform, elementSize 8) and the tree's ``foliage:tau``, for the current sun | ``foliage smax`` |
 | ``reference`` | ``primvars:foliage:ref:scattered`` (uniform) | ``foliage reference`` |
@@ -273,6 +273,55 @@ def load_method_data(path: Path, scene: Scene, methods: tuple[str, ...], warning
     return out
 
 
+def load_lb_bases(path: Path, scene: Scene, warnings: list[str]) -> dict[str, np.ndarray]:
+    """``{leaf mesh path: (18, 3T, 3) E_scattered of the LB bases B_1..B_18 at each corner}`` (steele2010 sec. 3.1).
+
+    From a ``foliage lb --bases all`` bake: the grids ``lbBase01..18`` hold the total energy
+    density u_k of each base; the never-scattered part u_k^un is recomputed exactly
+    (``lb.unscattered_energy``) from the leaves voxelized on the same grid and the medium the
+    volume records (``foliage:lb:sigmaA/sigmaS/g``), and E_scattered = (u_k - u_k^un) / 2 is
+    sampled at the corners (``lighting.lb`` units). Prototypes without base grids (a ``--bases sun``
+    bake) are left out: the ``lb`` method then draws ``primvars:foliage:lbIndirect``, which holds
+    the baked sun only.
+    """
+    from foliage_tools.geometry.voxelize import GridSpec, area_per_voxel
+    from foliage_tools.lighting import lb as lbm
+    from foliage_tools.lighting.collision import Medium, density_from_lad
+    from foliage_tools.pipeline.density import volume_path
+    from foliage_tools.pipeline.lb import sample_trilinear
+    from foliage_tools.scene.primvars import read_attribute, volume_field_file
+    from foliage_tools.scene.vdb import read_grid
+
+    out: dict[str, np.ndarray] = {}
+    for proto in scene.prototypes:
+        leaf_parts = [m for m in proto.meshes if m.is_leaf and len(m.triangles)]
+        if not leaf_parts:
+            continue
+        vol = volume_path(proto)
+        files = [volume_field_file(path, vol, f"lbBase{k:02d}") for k in range(1, 19)]
+        if not all(files):
+            continue
+        medium_attrs = {n: read_attribute(path, f"foliage:lb:{n}", [vol])[vol] for n in ("sigmaA", "sigmaS", "g")}
+        if any(v is None for v in medium_attrs.values()):
+            warnings.append(f"{path}: <{vol}> has LB bases but no foliage:lb:sigmaA/sigmaS/g (an older bake): the lb method "
+                            "draws the baked sun only; re-run `foliage lb --bases all` to relight.")
+            continue
+        grids = [read_grid(Path(f), f"lbBase{k:02d}") for k, f in enumerate(files, start=1)]
+        g0 = grids[0]
+        if any(g.values.shape != g0.values.shape or g.origin != g0.origin or g.voxel_size != g0.voxel_size for g in grids):
+            raise InputError(f"@{path}@: the lbBase grids of <{vol}> are not on one grid; re-run `foliage lb --bases all`.")
+        spec = GridSpec(g0.origin, g0.voxel_size, g0.values.shape[:3])
+        rho = density_from_lad(area_per_voxel(proto.triangles(leaves=True), spec) / spec.voxel_volume, spec.voxel_size)
+        medium = Medium(*(tuple(float(x) for x in medium_attrs[n]) for n in ("sigmaA", "sigmaS", "g")))
+        problem = lbm.LBProblem(rho, medium, lbm.relighting_boundaries()[1:])
+        total = np.stack([g.values for g in grids], axis=3)  # (nx, ny, nz, 18, 3)
+        scattered = np.maximum(lbm.scattered_leaf_irradiance(total, lbm.unscattered_energy(problem)), 0.0)
+        for m in leaf_parts:
+            corners = m.points[m.triangles].reshape(-1, 3)
+            out[m.path] = np.ascontiguousarray(np.moveaxis(sample_trilinear(scattered, spec, corners), 1, 0), dtype=np.float32)
+    return out
+
+
 def load_smax_data(path: Path, scene: Scene) -> dict[str, tuple[float, dict[str, np.ndarray]]]:
     """``{prototype path: (τ, {leaf mesh path: (3T, 8) s_max per triangle corner})}`` written by ``foliage smax``.
 
@@ -453,7 +502,15 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
     if not scene.prototypes or not scene.instances or not any(len(m.triangles) for p in scene.prototypes for m in p.meshes):
         raise InputError(f"@{path}@ has no mesh geometry to preview; is it a tree asset?")
     methods = params.methods
-    data = load_method_data(Path(path), scene, methods, report.warnings)
+    lb_bases = load_lb_bases(Path(path), scene, report.warnings) if "lb" in methods else {}
+    # relightable lb bases serve the trees they cover even where the leaves carry no lb primvars
+    # (native-instance prototypes cannot); only without bases are the primvars required
+    data = load_method_data(Path(path), scene, tuple(m for m in methods if not (m == "lb" and lb_bases)), report.warnings)
+    if lb_bases:
+        uncovered = [m.path for p in scene.prototypes for m in p.meshes if m.is_leaf and len(m.triangles) and m.path not in lb_bases]
+        if uncovered:
+            report.warnings.append(f"{path}: {len(uncovered)} leaf mesh(es) have no LB bases (e.g. <{uncovered[0]}>); "
+                                   "their lb light is drawn as 0.")
     smax = load_smax_data(Path(path), scene) if "smax" in methods else None
     if smax is not None:
         unbaked = [m.path for p in scene.prototypes if p.path not in smax for m in p.meshes if m.is_leaf]
@@ -463,7 +520,10 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
                 f"{path}: {len(unbaked) + len(partial)} leaf mesh(es) have no s_max (e.g. <{(unbaked + partial)[0]}>); "
                 "the smax method draws their tree without scattered light."
             )
-    draw = DrawScene.from_scene(scene, data, smax)
+    if "lb" in methods and not lb_bases and params.sun_sweep:
+        report.warnings.append(f"{path}: the lb bake has no relighting bases (it was baked with --bases sun), so --sun-sweep "
+                               "frames show the baked sun's lb light; bake with `foliage lb --bases all` to relight.")
+    draw = DrawScene.from_scene(scene, data, smax, lb_bases)
     bounds = draw.bounds()
     up = scene.up
     ground = Ground.under(bounds, up) if params.ground else None

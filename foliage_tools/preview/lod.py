@@ -155,6 +155,7 @@ def thin_leaves(mesh: DrawMesh, fraction: float, seed: int = LEAF_SEED) -> DrawM
         leaf=True,
         indirect={k: v[keep] for k, v in mesh.indirect.items()},
         smax=None if mesh.smax is None else mesh.smax[keep],
+        lb_bases=None if mesh.lb_bases is None else mesh.lb_bases[:, keep],
     )
 
 

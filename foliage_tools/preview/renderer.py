@@ -74,6 +74,10 @@ class DrawMesh:
     smax: np.ndarray | None = None
     """(3T, 8) float32 s_max(P, ω_j) of each corner's leaf (boulanger2008 eq. (5.28) order), stage
     units: the ``smax`` method evaluates Boulanger's model from it in the vertex shader."""
+    lb_bases: np.ndarray | None = None
+    """(18, 3T, 3) float32 scattered irradiance of each LB Kronecker base B_1..B_18 at each corner
+    (steele2010 sec. 3.1): the ``lb`` method then relights every instance for the current sun
+    from the three bases that bracket it in the instance's frame, instead of ``indirect["lb"]``."""
 
     def __post_init__(self) -> None:
         if self.corners.ndim != 2 or self.corners.shape[1] != 3 or self.corners.shape[0] % 3:
@@ -86,6 +90,8 @@ class DrawMesh:
         for name, values in self.indirect.items():
             if values.shape != self.corners.shape:
                 raise ValueError(f"indirect term {name!r} has shape {values.shape}, corners {self.corners.shape}")
+        if self.lb_bases is not None and self.lb_bases.shape != (18,) + self.corners.shape:
+            raise ValueError(f"lb_bases has shape {self.lb_bases.shape}, expected (18, {self.corners.shape[0]}, 3)")
 
     @property
     def triangle_count(self) -> int:
@@ -146,6 +152,8 @@ class DrawScene:
         names = {k for p in self.prototypes for m in p.meshes for k in m.indirect}
         if any(m.smax is not None and p.tau is not None for p in self.prototypes for m in p.meshes):
             names.add("smax")
+        if any(m.lb_bases is not None for p in self.prototypes for m in p.meshes):
+            names.add("lb")
         return names
 
     def bounds(self) -> np.ndarray:
@@ -162,6 +170,7 @@ class DrawScene:
         scene: Scene,
         indirect: Mapping[str, Mapping[str, np.ndarray]] | None = None,
         smax: Mapping[str, tuple[float, Mapping[str, np.ndarray]]] | None = None,
+        lb_bases: Mapping[str, np.ndarray] | None = None,
     ) -> DrawScene:
         """Merge each prototype's meshes into one leaf and one wood :class:`DrawMesh`.
 
@@ -169,10 +178,12 @@ class DrawScene:
         E_scattered per triangle corner}``; leaf meshes a method does not cover get 0.
         ``smax`` maps a prototype path to ``(τ, {leaf mesh path: (3T, 8) s_max per corner})``;
         a prototype's leaves are drawn with the ``smax`` method only when all its leaf
-        meshes have s_max.
+        meshes have s_max. ``lb_bases`` maps a leaf mesh path to its (18, 3T, 3) relighting
+        bases (:attr:`DrawMesh.lb_bases`); used when all leaf meshes of a prototype have them.
         """
         indirect = indirect or {}
         smax = smax or {}
+        lb_bases = lb_bases or {}
         protos = []
         for k, proto in enumerate(scene.prototypes):
             transforms = np.array([inst.transform for inst in scene.instances if inst.prototype == k], dtype=np.float64).reshape(-1, 4, 4)
@@ -200,7 +211,10 @@ class DrawScene:
                 corner_smax = None
                 if leaf and baked is not None and all(m.path in baked[1] for m in parts):
                     corner_smax = np.concatenate([np.asarray(baked[1][m.path], dtype=np.float32).reshape(-1, 8) for m in parts])
-                meshes.append(DrawMesh(corners=corners, leaf=leaf, indirect=terms, smax=corner_smax))
+                corner_lb = None
+                if leaf and parts and all(m.path in lb_bases for m in parts):
+                    corner_lb = np.concatenate([np.asarray(lb_bases[m.path], dtype=np.float32) for m in parts], axis=1)
+                meshes.append(DrawMesh(corners=corners, leaf=leaf, indirect=terms, smax=corner_smax, lb_bases=corner_lb))
             tau = smax[proto.path][0] if proto.path in smax else None
             protos.append(DrawPrototype(meshes=tuple(meshes), transforms=transforms, tau=tau))
         return cls(prototypes=tuple(protos), up=scene.up)
@@ -415,6 +429,13 @@ class _Draw:
     sky_cache: object = None
     """RG float texture: sky visibility (front, back) per vertex and instance, written once by the sky pass."""
     sky_cache_width: int = 1
+    lb_tex: object = None
+    """RGB float texture of the 18 LB relighting bases per vertex (texel vertex * 18 + k), or None."""
+    lb_width: int = 1
+    lb_inst: object = None
+    """Per-instance (3 base indices, 3 barycentric weights) buffer, rewritten for each frame's sun."""
+    transforms: np.ndarray | None = None
+    """(N, 4, 4) world-from-prototype matrices of the instances (for the sun in each instance's frame)."""
 
 
 class Renderer:
@@ -443,6 +464,7 @@ class Renderer:
         self._programs: dict[tuple[str, bool], object] = {}
         self._vaos: dict[tuple, object] = {}
         self._buffers: list = []
+        self._lb_textures: list = []
         self._targets = None
         self._target_size: tuple[int, int] | None = None
         self._shadow_key: tuple | None = None
@@ -488,6 +510,7 @@ class Renderer:
                 self._programs[key] = self.ctx.program(vertex_shader=vert, varyings=varyings)
             else:
                 defines = version + ("#define HAS_INDIRECT\n" if indirect else "") + ("#define SMAX_MODEL\n" if indirect == "smax" else "")
+                defines += "#define LB_RELIGHT\n" if indirect == "lb-relight" else ""
                 model = _shader("boulanger.glsl") if indirect == "smax" else ""
                 # the trees read their sky visibility from the per-scene cache; the ground computes its own
                 cached = "#define SKY_CACHED\n" if kind != "ground" and self.sky_samples else ""
@@ -521,12 +544,48 @@ class Renderer:
                         smax=self._buffer(mesh.smax) if mesh.smax is not None and proto.tau is not None else None,
                         tau=float(proto.tau or 0.0),
                         omega=proto.sample_directions(np.asarray(self.scene.up, dtype=np.float64)) if mesh.smax is not None else None,
+                        transforms=np.asarray(proto.transforms, dtype=np.float64),
+                        **self._lb_upload(mesh, len(proto.transforms)),
                     )
                 )
         self._ground_inst = self._buffer(_instance_data(np.eye(4)[None]))
         self._ground_vbo = None
         self._ground_nbo = None
         self._ground_key: tuple | None = None
+
+    def _lb_upload(self, mesh: DrawMesh, instances: int) -> dict:
+        """The LB relighting bases as a texture (texel vertex * 18 + k) and the per-instance weight buffer."""
+        if mesh.lb_bases is None:
+            return {}
+        per_vertex = np.ascontiguousarray(np.transpose(mesh.lb_bases, (1, 0, 2)), dtype=np.float32).reshape(-1, 3)
+        width = min(self.max_texture, 4096)
+        rows = -(-len(per_vertex) // width)
+        if rows > self.max_texture:
+            raise UsageError(f"the LB relighting bases of {mesh.triangle_count} triangles need a {width}x{rows} texture; "
+                             f"this GL allows {self.max_texture} per side. Preview with --lod, or use the baked sun (bake --bases sun).")
+        data = np.zeros((rows * width, 3), np.float32)
+        data[: len(per_vertex)] = per_vertex
+        tex = self.ctx.texture((width, rows), 3, data.tobytes(), dtype="f4")
+        tex.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
+        self._lb_textures.append(tex)
+        return {"lb_tex": tex, "lb_width": width, "lb_inst": self._buffer(np.zeros((max(instances, 1), 6), np.float32))}
+
+    def _lb_weights(self, draw: _Draw, sun: np.ndarray) -> None:
+        """steele2010 sec. 3.1 per instance: the hull face hit by the light's travel direction in the instance's
+        frame and its barycentric weights (lattice.barycentric_weights), written to the instance buffer."""
+        from foliage_tools.geometry.sun import to_prototype_space
+        from foliage_tools.lighting.lattice import barycentric_weights
+
+        rows = np.zeros((len(draw.transforms), 6), np.float32)
+        for i, m in enumerate(draw.transforms):
+            try:
+                local = to_prototype_space(sun, m)
+            except ValueError:  # a degenerate (zero-scale) instance draws nothing anyway
+                continue
+            idx, w = barycentric_weights(-np.asarray(local, dtype=np.float64))
+            rows[i, :3] = np.asarray(idx, dtype=np.float32) - 1.0  # lattice directions 1..18 -> bases 0..17
+            rows[i, 3:] = w
+        draw.lb_inst.write(rows.tobytes())
 
     def _vao(self, program_key: tuple[str, bool], draw: _Draw, indirect_name: str | None):
         key = (program_key, draw.key, indirect_name)
@@ -537,6 +596,8 @@ class Renderer:
                 content.append((draw.normals, "3f", "in_normal"))
             if indirect_name == "smax":
                 content.append((draw.smax, "4f 4f", "in_smax0", "in_smax1"))
+            elif indirect_name == "lb-relight":
+                content.append((draw.lb_inst, "3f 3f/i", "in_lb_index", "in_lb_weight"))
             elif indirect_name is not None:
                 content.append((draw.indirect[indirect_name], "3f", "in_indirect"))
             self._vaos[key] = self.ctx.vertex_array(prog, content, skip_errors=True)
@@ -856,6 +917,8 @@ class Renderer:
             kind = "leaf" if draw.leaf else "wood"
             if method == "smax" and draw.smax is not None:
                 name, key = "smax", (kind, "smax")
+            elif method == "lb" and draw.lb_tex is not None:
+                name, key = "lb-relight", (kind, "lb-relight")
             else:
                 name = method if (method is not None and method in draw.indirect) else None
                 key = (kind, name is not None)
@@ -863,6 +926,11 @@ class Renderer:
             setup(prog, kind)
             if name == "smax":
                 self._smax_uniforms(prog, draw, optics)
+            if name == "lb-relight":
+                self._lb_weights(draw, sun)
+                draw.lb_tex.use(location=3)
+                prog["u_lb_bases"].value = 3
+                prog["u_lb_width"].value = draw.lb_width
             if draw.sky_cache is not None:
                 draw.sky_cache.use(location=2)
                 prog["u_sky_cache_width"].value = draw.sky_cache_width
@@ -894,6 +962,8 @@ class Renderer:
             prog.release()
         for buf in self._buffers:
             buf.release()
+        for tex in self._lb_textures:
+            tex.release()
         for obj in self._targets or ():
             obj.release()
         self._shadow_fbo.release()

@@ -83,3 +83,15 @@ def read_attribute(path: str | os.PathLike, name: str, prim_paths: list[str]) ->
         attr = prim.GetAttribute(name) if prim else None
         out[prim_path] = attr.Get() if attr else None
     return out
+
+
+def volume_field_file(path: str | os.PathLike, volume: str, field_name: str) -> str | None:
+    """Resolved file of the ``OpenVDBAsset`` field ``field_name`` of the volume prim ``volume``; None when absent."""
+    from pxr import UsdVol
+
+    stage = open_stage(path)
+    prim = stage.GetPrimAtPath(f"{volume}/{field_name}")
+    if not prim or not prim.IsA(UsdVol.OpenVDBAsset):
+        return None
+    asset = UsdVol.OpenVDBAsset(prim).GetFilePathAttr().Get()
+    return (asset.resolvedPath or None) if asset is not None else None

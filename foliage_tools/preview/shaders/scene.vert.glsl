@@ -17,6 +17,18 @@ in mat3 in_normal_matrix; // per instance: inverse transpose of the model's 3x3 
 // sun light is evaluated here (Algorithm 13, boulanger.glsl) for the current sun
 in vec4 in_smax0;
 in vec4 in_smax1;
+#elif defined(LB_RELIGHT)
+// steele2010 sec. 3.1: E_scattered of the 18 Kronecker bases per vertex (texel vertex * 18 + k) and,
+// per instance, the three bases whose hull face the sun (in the instance's frame) falls in, with
+// their barycentric weights (renderer._lb_weights): relit for the current sun
+uniform sampler2D u_lb_bases;
+uniform int u_lb_width;
+in vec3 in_lb_index;
+in vec3 in_lb_weight;
+vec3 lb_base(float k) {
+    int t = gl_VertexID * 18 + int(k + 0.5);
+    return texelFetch(u_lb_bases, ivec2(t % u_lb_width, t / u_lb_width), 0).rgb;
+}
 #else
 in vec3 in_indirect;  // E_scattered at this corner: scattered irradiance, both faces summed
 #endif
@@ -63,6 +75,11 @@ void main() {
     smax_sun_indirect(in_normal, in_smax0, in_smax1, light, v_indirect_front, v_indirect_back);
     v_indirect_front *= u_sun_irradiance;
     v_indirect_back *= u_sun_irradiance;
+#elif defined(LB_RELIGHT)
+    vec3 e = in_lb_weight.x * lb_base(in_lb_index.x) + in_lb_weight.y * lb_base(in_lb_index.y)
+           + in_lb_weight.z * lb_base(in_lb_index.z);
+    v_indirect_front = 0.5 * e;  // both faces summed, half to each (as for a baked E_scattered)
+    v_indirect_back = 0.5 * e;
 #else
     // a baked E_scattered is both faces summed (DESIGN.md section 3); without its split
     // between the faces each face gets half
