@@ -20,6 +20,9 @@ Scenes:
 * ``forest K, smax``: the same forest drawn with ``--method smax``: Boulanger's
   one-bounce model evaluated per vertex (``shaders/boulanger.glsl``) from s_max
   per leaf (random here: the cost does not depend on the values) and τ.
+* ``forest K, lb relit``: the same forest drawn with ``--method lb`` from 18 relighting
+  bases per vertex (random values): every instance blends the three bases that bracket
+  the sun in its own frame (``scene.vert.glsl``, LB_RELIGHT), weights recomputed per frame.
 
 For each scene: upload time (GL context, buffers, programs: the first frame
 compiles shaders, so it is reported separately), then the median over
@@ -108,6 +111,19 @@ def with_smax(scene: DrawScene, rng: np.random.Generator) -> DrawScene:
     return DrawScene(tuple(protos), scene.up)
 
 
+def with_lb_bases(scene: DrawScene, rng: np.random.Generator) -> DrawScene:
+    """The scene with random E_scattered of the 18 LB bases at every leaf corner (for timing the relit lb method)."""
+    protos = []
+    for p in scene.prototypes:
+        meshes = tuple(
+            DrawMesh(corners=m.corners, leaf=True, indirect=m.indirect,
+                     lb_bases=rng.uniform(0.0, 0.1, size=(18,) + m.corners.shape).astype(np.float32)) if m.leaf else m
+            for m in p.meshes
+        )
+        protos.append(DrawPrototype(meshes, p.transforms))
+    return DrawScene(tuple(protos), scene.up)
+
+
 def bench(name: str, scene: DrawScene, *, width: int, height: int, frames: int, samples: int, shadow_size: int,
           lod: float | None = None, method: str | None = None) -> dict:
     bounds = scene.bounds()
@@ -157,6 +173,7 @@ def main() -> None:
     ap.add_argument("--forest", type=int, nargs="*", default=[100], help="forest sizes (instances); none to skip")
     ap.add_argument("--lod", type=float, nargs="*", default=[0.25], help="LOD fractions for extra forest rows; none to skip")
     ap.add_argument("--no-smax", action="store_true", help="skip the forest row drawn with the smax method")
+    ap.add_argument("--no-lb", action="store_true", help="skip the forest row drawn with the relit lb method")
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--samples", type=int, default=4)
     ap.add_argument("--shadow-size", type=int, default=2048)
@@ -175,6 +192,9 @@ def main() -> None:
         if not args.no_smax:
             rows.append(bench(f"forest {k}, smax", with_smax(forest, rng), width=width, height=height, frames=args.frames,
                               samples=args.samples, shadow_size=args.shadow_size, method="smax"))
+        if not args.no_lb:
+            rows.append(bench(f"forest {k}, lb relit", with_lb_bases(forest, rng), width=width, height=height, frames=args.frames,
+                              samples=args.samples, shadow_size=args.shadow_size, method="lb"))
         for f in args.lod:
             rows.append(bench(f"forest {k}, lod {f:g}", forest, width=width, height=height, frames=args.frames,
                               samples=args.samples, shadow_size=args.shadow_size, lod=f))
