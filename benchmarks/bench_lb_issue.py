@@ -69,6 +69,7 @@ from foliage_tools.lighting.lb import (
     LBProblem,
     _Operator,
     _reference_step,
+    memory_bytes,
     relighting_boundaries,
     solve,
     sun_boundary,
@@ -212,7 +213,7 @@ def bake_table() -> None:
     print(f"\n4. Full relightable bake (bases=all: 18 bases x RGB solved, ambient = their sum, unscattered in one pass) of {example.name}, run_lb end to end")
     shapes = {64: (60, 61, 66), 128: (117, 119, 130)}
     for res in (64, 128):
-        need = 2.3 * np.prod(shapes[res]) * 72 * 54
+        need = memory_bytes(shapes[res], 54)
         avail = available_memory()
         if need > avail:
             print(f"   resolution {res}: SKIPPED, needs ~{need / 1e9:.1f} GB, MemAvailable {avail / 1e9:.1f} GB")

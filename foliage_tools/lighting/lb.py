@@ -148,6 +148,7 @@ __all__ = [
     "ambient_boundary",
     "base_boundary",
     "leaf_irradiance",
+    "memory_bytes",
     "relight",
     "relighting_boundaries",
     "scattered_leaf_irradiance",
@@ -1105,6 +1106,16 @@ def _transmit(att, cx, cy, cz, out):  # pragma: no cover - compiled
                 else:
                     for c in range(C):
                         out[x, y, z, c] = out[ux, uy, uz, c] * att[ux, uy, uz, c]
+
+
+#: Fields of 18 float32 directions (72 bytes per node and right-hand side) plain iteration holds: the
+#: state and its update, plus the outputs and temporaries of the bake (~0.3 field).
+PLAIN_ITERATION_FIELDS = 2.3
+
+
+def memory_bytes(shape, nrhs: int, fields: float = PLAIN_ITERATION_FIELDS) -> float:
+    """Bytes a float32 solve on a grid of ``shape`` with ``nrhs`` right-hand sides holds (``fields`` fields)."""
+    return float(np.prod(shape)) * nrhs * NQ * 4 * fields
 
 
 def unscattered_energy(problem: LBProblem, dtype: str = "float32") -> np.ndarray:

@@ -41,11 +41,8 @@ class DensityResult:
     seconds: float
 
 
-def compute_density(proto: Prototype, params: DensityParams) -> DensityResult:
-    """Voxelize one prototype (pure numerics on its arrays)."""
-    t0 = time.perf_counter()
-    leaf = proto.triangles(leaves=True)
-    wood = proto.triangles(leaves=False)
+def density_grid(proto: Prototype, params: DensityParams) -> GridSpec:
+    """The grid every bake voxelizes ``proto`` on: its foliage bounds plus the margin, refused above MAX_CELLS."""
     lo, hi = proto.bounds(leaves_only=True)
     grid = grid_for_bounds(lo, hi, margin_voxels=params.margin_voxels, **params.grid_options())
     cells = int(np.prod(grid.shape))
@@ -54,6 +51,15 @@ def compute_density(proto: Prototype, params: DensityParams) -> DensityResult:
             f"prototype <{proto.path}>: a {'x'.join(map(str, grid.shape))} grid ({cells / 1e6:.0f}M voxels) is too large; "
             f"use a larger --voxel-size or a --resolution of at most {MAX_RESOLUTION}."
         )
+    return grid
+
+
+def compute_density(proto: Prototype, params: DensityParams) -> DensityResult:
+    """Voxelize one prototype (pure numerics on its arrays)."""
+    t0 = time.perf_counter()
+    leaf = proto.triangles(leaves=True)
+    wood = proto.triangles(leaves=False)
+    grid = density_grid(proto, params)
     if params.method == "area":
         leaf_area = area_per_voxel(leaf, grid)
         wood_area = area_per_voxel(wood, grid) if len(wood) else np.zeros(grid.shape)

@@ -31,7 +31,7 @@ from foliage_tools.lighting.collision import Medium, brown, density_from_lad, le
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import compute_density, vdb_path, volume_path
-from foliage_tools.pipeline.plan import available_memory, lb_memory
+from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.leafdata import leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
@@ -129,7 +129,7 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
     boundaries = (lb.sun_boundary(sun_local),) if params.bases == "sun" else lb.relighting_boundaries()[1:]
     problem = lb.LBProblem(density=rho, medium=medium, boundaries=boundaries,
                            brown_mask=mask if mask.any() else None, brown_medium=brown(medium) if mask.any() else None)
-    need, free = lb_memory(grid.shape, len(boundaries) * medium.channels), available_memory()
+    need, free = lb.memory_bytes(grid.shape, len(boundaries) * medium.channels), available_memory()
     if need > free:
         raise UsageError(
             f"prototype <{proto.path}>: the LB solve on a {'x'.join(map(str, grid.shape))} grid with "

@@ -17,10 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools.errors import UsageError
-from foliage_tools.geometry.voxelize import grid_for_bounds
 from foliage_tools.lighting.envelope import AUTO_FAST_THRESHOLD
+from foliage_tools.lighting.lb import memory_bytes
+from foliage_tools.params import DensityParams
+from foliage_tools.pipeline.density import density_grid
 from foliage_tools.pipeline.report import Report
-from foliage_tools.pipeline.spp import AUTO_RAYS_MAX_LEAVES, DEPTH_PATHS
+from foliage_tools.pipeline.spp import DEPTH_PATHS, depth_path
 from foliage_tools.scene.read import read_scene
 
 #: LB node x right-hand-side updates per second, many (>= 19) / few right-hand sides
@@ -29,8 +31,6 @@ LB_MLUPS_MANY, LB_MLUPS_FEW = 90e6, 45e6
 #: LB sweeps to tolerance 1e-5 per node of the longest grid edge (bench_lb_issue.py bake rows:
 #: 68 sweeps at 66 nodes, 132 at 130, physical absorption; lower absorption needs more).
 LB_SWEEPS_PER_EDGE = 1.05
-#: Bytes held per node per LB right-hand side: 2 fields of 18 float32 directions (72 B) plus outputs (~0.3 field).
-LB_BYTES_PER_NODE_RHS = 2.3 * 72
 #: Seconds per leaf of the area density kernel (bench_density.py: 100k leaves 0.45 s).
 DENSITY_S_PER_LEAF = 4.5e-6
 #: smax: reference pairs per second (O(N^2), bench_smax.py: 40k leaves 8.2 s) and fast path per leaf (0.16 s).
@@ -51,11 +51,6 @@ def available_memory() -> float:
     except OSError:
         pass
     return float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-
-
-def lb_memory(shape, rhs: int) -> float:
-    """Bytes an LB solve holds: ``LB_BYTES_PER_NODE_RHS`` per node and right-hand side (plain iteration)."""
-    return float(np.prod(shape)) * rhs * LB_BYTES_PER_NODE_RHS
 
 
 @dataclass(frozen=True)
@@ -83,7 +78,7 @@ def plan(path: Path, params: PlanParams) -> Report:
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
     leaves_total = sum(scene.prototypes[inst.prototype].leaves.count for inst in scene.instances)
-    depth = params.depth if params.depth != "auto" else ("rays" if leaves_total <= AUTO_RAYS_MAX_LEAVES else "grid")
+    depth = depth_path(scene, params.depth)
     protos = []
     total_s = {"density": 0.0, "smax": 0.0, "spp": 0.0, "lb": 0.0}
     peak = 0.0
@@ -91,13 +86,12 @@ def plan(path: Path, params: PlanParams) -> Report:
         n = int(proto.leaves.count)
         if not n:
             continue
-        lo, hi = proto.bounds(leaves_only=True)
-        grid = grid_for_bounds(lo, hi, resolution=params.resolution)
+        grid = density_grid(proto, DensityParams(resolution=params.resolution))
         nodes = int(np.prod(grid.shape))
         rhs = 3 * (18 if params.bases == "all" else 1)
         sweeps = LB_SWEEPS_PER_EDGE * max(grid.shape)
         lb_s = sweeps * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW)
-        lb_bytes = lb_memory(grid.shape, rhs)
+        lb_bytes = memory_bytes(grid.shape, rhs)
         fast = n >= AUTO_FAST_THRESHOLD
         smax_s = n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S
         instances = len(scene.instances_of(i))

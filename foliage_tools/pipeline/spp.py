@@ -280,12 +280,18 @@ def bake_prototype(
     )
 
 
-def resolve_depth(scene: Scene, params: SppParams) -> SppParams:
-    """``depth="auto"`` made concrete for this scene (``AUTO_RAYS_MAX_LEAVES``); other choices unchanged."""
-    if params.depth != "auto":
-        return params
+def depth_path(scene: Scene, depth: str) -> str:
+    """``--depth`` made concrete for this scene: ``auto`` counts rays up to ``AUTO_RAYS_MAX_LEAVES`` leaves
+    (summed over instances) and integrates the grid above; ``rays``/``grid`` stay as given."""
+    if depth != "auto":
+        return depth
     leaves = sum(scene.prototypes[inst.prototype].leaves.count for inst in scene.instances)
-    return replace(params, depth="rays" if leaves <= AUTO_RAYS_MAX_LEAVES else "grid")
+    return "rays" if leaves <= AUTO_RAYS_MAX_LEAVES else "grid"
+
+
+def resolve_depth(scene: Scene, params: SppParams) -> SppParams:
+    """``params`` with ``depth`` made concrete for this scene (:func:`depth_path`)."""
+    return replace(params, depth=depth_path(scene, params.depth))
 
 
 def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], progress: Progress) -> list[SppBake]:
