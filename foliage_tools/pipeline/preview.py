@@ -289,7 +289,7 @@ def load_lb_bases(path: Path, scene: Scene, warnings: list[str]) -> dict[str, np
     from foliage_tools.lighting.collision import Medium, density_from_lad
     from foliage_tools.pipeline.density import volume_path
     from foliage_tools.pipeline.lb import sample_trilinear
-    from foliage_tools.scene.primvars import read_attribute, volume_field_file
+    from foliage_tools.scene.primvars import read_volume
     from foliage_tools.scene.vdb import read_grid
 
     out: dict[str, np.ndarray] = {}
@@ -298,10 +298,12 @@ def load_lb_bases(path: Path, scene: Scene, warnings: list[str]) -> dict[str, np
         if not leaf_parts:
             continue
         vol = volume_path(proto)
-        files = [volume_field_file(path, vol, f"lbBase{k:02d}") for k in range(1, 19)]
+        names = [f"lbBase{k:02d}" for k in range(1, 19)]
+        found, attrs = read_volume(path, vol, names, [f"foliage:lb:{n}" for n in ("sigmaA", "sigmaS", "g")])
+        files = [found[n] for n in names]
         if not all(files):
             continue
-        medium_attrs = {n: read_attribute(path, f"foliage:lb:{n}", [vol])[vol] for n in ("sigmaA", "sigmaS", "g")}
+        medium_attrs = {n: attrs[f"foliage:lb:{n}"] for n in ("sigmaA", "sigmaS", "g")}
         if any(v is None for v in medium_attrs.values()):
             warnings.append(f"{path}: <{vol}> has LB bases but no foliage:lb:sigmaA/sigmaS/g (an older bake): the lb method "
                             "draws the baked sun only; re-run `foliage lb --bases all` to relight.")

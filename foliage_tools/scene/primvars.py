@@ -85,13 +85,20 @@ def read_attribute(path: str | os.PathLike, name: str, prim_paths: list[str]) ->
     return out
 
 
-def volume_field_file(path: str | os.PathLike, volume: str, field_name: str) -> str | None:
-    """Resolved file of the ``OpenVDBAsset`` field ``field_name`` of the volume prim ``volume``; None when absent."""
+def read_volume(path: str | os.PathLike, volume: str, field_names: list[str], attribute_names: list[str]) -> tuple[dict, dict]:
+    """``({field name: resolved file or None}, {attribute name: value or None})`` of the volume prim ``volume``,
+    reading the stage once: each ``OpenVDBAsset`` child's file and the volume's own attributes."""
     from pxr import UsdVol
 
     stage = open_stage(path)
-    prim = stage.GetPrimAtPath(f"{volume}/{field_name}")
-    if not prim or not prim.IsA(UsdVol.OpenVDBAsset):
-        return None
-    asset = UsdVol.OpenVDBAsset(prim).GetFilePathAttr().Get()
-    return (asset.resolvedPath or None) if asset is not None else None
+    files: dict[str, str | None] = {}
+    for name in field_names:
+        prim = stage.GetPrimAtPath(f"{volume}/{name}")
+        asset = UsdVol.OpenVDBAsset(prim).GetFilePathAttr().Get() if prim and prim.IsA(UsdVol.OpenVDBAsset) else None
+        files[name] = (asset.resolvedPath or None) if asset is not None else None
+    prim = stage.GetPrimAtPath(volume)
+    attrs = {}
+    for name in attribute_names:
+        attr = prim.GetAttribute(name) if prim else None
+        attrs[name] = attr.Get() if attr else None
+    return files, attrs
