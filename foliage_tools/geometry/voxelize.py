@@ -288,6 +288,48 @@ def _clip(src, n, dst, axis, c, keep_above):
     return m
 
 
+@njit(cache=True, inline="always")
+def projection_axes(tri):
+    """(k1, k2, factor) for a triangle in rows 0..2 of ``tri``: the area of any planar piece of it is
+    ``projected_area(piece, k1, k2) * factor`` -- the area of its projection on the plane normal to the
+    dominant axis k of the normal n, times |n| / |n_k| (and the 1/2 of the shoelace sum). factor is 0
+    for a zero-area triangle."""
+    ax = tri[1, 0] - tri[0, 0]
+    ay = tri[1, 1] - tri[0, 1]
+    az = tri[1, 2] - tri[0, 2]
+    bx = tri[2, 0] - tri[0, 0]
+    by = tri[2, 1] - tri[0, 1]
+    bz = tri[2, 2] - tri[0, 2]
+    cx = ay * bz - az * by
+    cy = az * bx - ax * bz
+    cz = ax * by - ay * bx
+    norm = math.sqrt(cx * cx + cy * cy + cz * cz)
+    if norm == 0.0:
+        return 1, 2, 0.0
+    k = 0
+    nk = abs(cx)
+    if abs(cy) > nk:
+        k = 1
+        nk = abs(cy)
+    if abs(cz) > nk:
+        k = 2
+        nk = abs(cz)
+    return (k + 1) % 3, (k + 2) % 3, 0.5 * norm / nk
+
+
+@njit(cache=True, inline="always")
+def projected_area(poly, n, k1, k2):
+    """Twice the area of the convex polygon ``poly[:n]`` projected on axes (k1, k2) (shoelace, absolute)."""
+    s = 0.0
+    for q in range(1, n - 1):
+        ux = poly[q, k1] - poly[0, k1]
+        uy = poly[q, k2] - poly[0, k2]
+        vx = poly[q + 1, k1] - poly[0, k1]
+        vy = poly[q + 1, k2] - poly[0, k2]
+        s += ux * vy - uy * vx
+    return abs(s)
+
+
 @njit(cache=True)
 def clip_slab(src, n, dst, tmp, axis, j, pmin, pmax):
     """Clip ``src[:n]`` (coordinate range ``[pmin, pmax]`` along ``axis``) to the closed slab ``[j, j+1]``.
@@ -383,31 +425,10 @@ def _area_kernel(tris, origin, h, nx, ny, nz, nthreads):
             first = _first_owned(i0, t, nthreads)
             if first > i1:
                 continue
-            # Area of a planar polygon = (area of its projection on the plane
-            # normal to the dominant axis k of the normal) * |n| / |n_k|.
-            ax = tri[1, 0] - tri[0, 0]
-            ay = tri[1, 1] - tri[0, 1]
-            az = tri[1, 2] - tri[0, 2]
-            bx = tri[2, 0] - tri[0, 0]
-            by = tri[2, 1] - tri[0, 1]
-            bz = tri[2, 2] - tri[0, 2]
-            cx = ay * bz - az * by
-            cy = az * bx - ax * bz
-            cz = ax * by - ay * bx
-            norm = math.sqrt(cx * cx + cy * cy + cz * cz)
-            if norm == 0.0:
+            k1, k2, factor = projection_axes(tri)
+            if factor == 0.0:
                 continue  # zero-area triangle: contributes nothing
-            k = 0
-            nk = abs(cx)
-            if abs(cy) > nk:
-                k = 1
-                nk = abs(cy)
-            if abs(cz) > nk:
-                k = 2
-                nk = abs(cz)
-            k1 = (k + 1) % 3
-            k2 = (k + 2) % 3
-            scale = 0.5 * h2 * norm / nk
+            scale = h2 * factor
             for i in range(first, i1 + 1, nthreads):
                 mx = clip_slab(tri, 3, px, tmp, 0, i, xmin, xmax)
                 if mx < 3:
@@ -424,14 +445,7 @@ def _area_kernel(tris, origin, h, nx, ny, nz, nthreads):
                         mz = clip_slab(py, my, pz, tmp, 2, l, zmin, zmax)
                         if mz < 3:
                             continue
-                        s = 0.0
-                        for q in range(1, mz - 1):
-                            ux = pz[q, k1] - pz[0, k1]
-                            uy = pz[q, k2] - pz[0, k2]
-                            vx = pz[q + 1, k1] - pz[0, k1]
-                            vy = pz[q + 1, k2] - pz[0, k2]
-                            s += ux * vy - uy * vx
-                        out[i, j, l] += abs(s) * scale
+                        out[i, j, l] += projected_area(pz, mz, k1, k2) * scale
     return out
 
 

@@ -60,7 +60,7 @@ from numba import njit, prange
 # The own-leaf kernel must cut leaves into exactly the voxel pieces the density
 # grid was built from, so it reuses the clipping of geometry.voxelize (same
 # package, same convention) instead of a second copy of it.
-from ..geometry.voxelize import CLIP_CAP, GridSpec, clip_slab, coord_range, owned_range
+from ..geometry.voxelize import CLIP_CAP, GridSpec, clip_slab, coord_range, owned_range, projected_area, projection_axes
 from .phase import SPHERICAL_G_FUNCTION
 
 __all__ = [
@@ -217,29 +217,9 @@ def _own_leaf_kernel(tris, start, origin, h, nx, ny, nz, pts, dirs, out):
             i0, i1 = owned_range(xmin, xmax, nx)
             if i1 < i0:
                 continue
-            ax = tri[1, 0] - tri[0, 0]
-            ay = tri[1, 1] - tri[0, 1]
-            az = tri[1, 2] - tri[0, 2]
-            bx = tri[2, 0] - tri[0, 0]
-            by = tri[2, 1] - tri[0, 1]
-            bz = tri[2, 2] - tri[0, 2]
-            cx = ay * bz - az * by
-            cy = az * bx - ax * bz
-            cz = ax * by - ay * bx
-            norm = math.sqrt(cx * cx + cy * cy + cz * cz)
-            if norm == 0.0:
+            k1, k2, scale = projection_axes(tri)
+            if scale == 0.0:
                 continue
-            kk = 0
-            nk = abs(cx)
-            if abs(cy) > nk:
-                kk = 1
-                nk = abs(cy)
-            if abs(cz) > nk:
-                kk = 2
-                nk = abs(cz)
-            k1 = (kk + 1) % 3
-            k2 = (kk + 2) % 3
-            scale = 0.5 * norm / nk
             for i in range(i0, i1 + 1):
                 mx = clip_slab(tri, 3, px, tmp, 0, i, xmin, xmax)
                 if mx < 3:
@@ -256,14 +236,7 @@ def _own_leaf_kernel(tris, start, origin, h, nx, ny, nz, pts, dirs, out):
                         mz = clip_slab(py, my, pz, tmp, 2, l, zmin, zmax)
                         if mz < 3:
                             continue
-                        s = 0.0
-                        for q in range(1, mz - 1):
-                            ux = pz[q, k1] - pz[0, k1]
-                            uy = pz[q, k2] - pz[0, k2]
-                            vx = pz[q + 1, k1] - pz[0, k1]
-                            vy = pz[q + 1, k2] - pz[0, k2]
-                            s += ux * vy - uy * vx
-                        a = abs(s) * scale
+                        a = projected_area(pz, mz, k1, k2) * scale
                         for q in range(n_dir):
                             out[p, q] += a * _box_chord(pts[p, 0], pts[p, 1], pts[p, 2], dirs[q, 0], dirs[q, 1], dirs[q, 2], i, j, l)
 
