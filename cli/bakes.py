@@ -153,14 +153,14 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed
             s = report.stats
             ref = s["reference"]
             table = Table(title=f"{escape(str(scene))}: {s['leaves']} leaves, sun az {s['sun']['azimuth']:.0f}° el {s['sun']['elevation']:.0f}°")
-            for col in ("method", "seconds", "rel. RMS E_scattered", "rel. RMS total", "binned RMS (eq. 30)"):
+            for col in ("method", "seconds", "rel. RMS E_scattered", "rel. RMS total", "binned E_scattered (eq. 30)", "binned total (eq. 30)"):
                 table.add_column(col, justify="left" if col == "method" else "right")
-            table.add_row("reference (MC)", f"{ref['seconds']:.2f}", f"noise {ref['noise_rel']:.3f}", f"noise {ref['noise_rel_total']:.3f}", "")
+            table.add_row("reference (MC)", f"{ref['seconds']:.2f}", f"noise {ref['noise_rel']:.3f}", f"noise {ref['noise_rel_total']:.3f}", "", "")
             for m in s["methods"]:
                 if not m["available"]:
-                    table.add_row(escape(m["name"]), "not available", "", "", "")
+                    table.add_row(escape(m["name"]), "not available", "", "", "", "")
                     continue
-                cells = ["n/a" if m[k] is None else f"{m[k]:.3f}" for k in ("rel_rms_scattered", "rel_rms_total", "binned_rms")]
+                cells = ["n/a" if m[k] is None else f"{m[k]:.3f}" for k in ("rel_rms_scattered", "rel_rms_total", "binned_rms", "binned_rms_total")]
                 table.add_row(escape(m["name"]), f"{m['seconds']:.3f}", *cells)
             console.stdout.print(table)
 

@@ -62,6 +62,9 @@ def test_bench_reports_every_method_with_errors_beside_the_reference_noise(tmp_p
     assert smax["available"] and smax["seconds"] > 0
     # E_direct is most of the total and smax models it: its total error must be well below 100 %
     assert 0 < smax["rel_rms_total"] < 1 and 0 < smax["rel_rms_scattered"] < 2
+    # SS scatters nothing: its binned E_scattered error is exactly 100 %, its binned total error is not
+    ss = rows["ss"]
+    assert ss["binned_rms"] == pytest.approx(1.0) and 0 < ss["binned_rms_total"] < 1
     assert stats["reference"]["noise_rel"] > 0
     assert (tmp_path / "p.png").stat().st_size > 1000
     bad = foliage("bench", EXAMPLE, "--methods", "smax,nope", "--paths", "1000")
