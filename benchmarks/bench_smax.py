@@ -3,6 +3,7 @@
 Usage::
 
     python benchmarks/bench_smax.py [--leaves 1500 40000 100000] [--repeats 3] [--reference-max 150000]
+                                    [--set fast_fine_grid=false ...]
 
 Each crown is boulanger2008's own model (sec. 5.2.1): N leaves with centres
 uniform in a ball of radius 1, uniformly random normals and equal areas
@@ -97,7 +98,18 @@ def main(argv=None) -> int:
     ap.add_argument("--reference-max", type=int, default=150_000, help="largest N for a full reference run")
     ap.add_argument("--probe-leaves", type=int, default=2000, help="leaves of the reference estimate above --reference-max")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument(
+        "--set", nargs="*", default=[], metavar="KEY=VALUE",
+        help="fast-path EnvelopeParams fields, e.g. --set fast_fine_grid=false fast_split_cells=2.7",
+    )
     args = ap.parse_args(argv)
+    fast_fields = {}
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep:
+            ap.error(f"--set takes KEY=VALUE, got {item!r}")
+        low = value.lower()
+        fast_fields[key] = low == "true" if low in ("true", "false") else (int(value) if value.lstrip("-").isdigit() else float(value))
     if args.repeats < 1 or min(args.leaves) < 2:
         ap.error("--repeats must be >= 1 and --leaves >= 2")
 
@@ -109,10 +121,12 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     warm = uniform_ball(200, args.tau, rng)
     solve(*warm, params=EnvelopeParams(path="reference"))
-    solve(*warm, params=EnvelopeParams(path="fast"))
+    fast_params = EnvelopeParams(path="fast", **fast_fields)
+    solve(*warm, params=fast_params)
+    if fast_fields:
+        print("fast path with " + ", ".join(f"{k}={v!r}" for k, v in fast_fields.items()))
 
     ref_params = EnvelopeParams(path="reference")
-    fast_params = EnvelopeParams(path="fast")
     header = (
         f"{'leaves':>8} | {'reference s':>13} | {'fast s':>8} | {'speed-up':>8} | {'tau ref':>7} | {'tau fast':>8} |"
         f" {'tau true':>8} | {'s_max rel err med':>17} | {'p95':>6} | {'|ds|/R p95':>10} | {'depth rel med':>13} | {'p95':>6} | {'|d depth| med':>13} | {'p95':>6} | fast grid"
@@ -144,7 +158,9 @@ def main(argv=None) -> int:
             f"{n_leaves:8d} | {t_ref_text} | {t_fast:8.4f} | {t_ref / t_fast:7.0f}x | {tau_ref:7.4f} | {fast.tau:8.4f} |"
             f" {args.tau:8.4f} | {100 * err['rel_med']:16.2f}% | {100 * err['rel_p95']:5.1f}% | {100 * err['crown_p95']:9.2f}% |"
             f" {100 * err['drel_med']:12.2f}% | {100 * err['drel_p95']:5.1f}% |"
-            f" {err['depth_med']:13.4f} | {err['depth_p95']:6.3f} | {fast.stats['grid']}, {fast.stats['near_pairs']} near pairs"
+            f" {err['depth_med']:13.4f} | {err['depth_p95']:6.3f} | {fast.stats['grid']}"
+            + (f" + fine {fast.stats['fine_grid']}" if "fine_grid" in fast.stats else "")
+            + f", {fast.stats['near_pairs']} near pairs"
         )
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     print(f"load average after: {load[0]:.2f} (other processes share the CPUs; timings vary with it)")

@@ -58,41 +58,60 @@ r_2 (a C¹ smoothstep):
   pair is visited once and adds to both leaves (o(P, P') uses A' and N', o(P',
   P) uses A and N, in opposite octants), see ``_near_kernel``;
 * far field, r > r_1: the leaves are far, so -ln(1 - o) ≈ o, which is linear
-  in the leaves: (1 - w(r)) o. Every leaf's mean projected area
-  A' ḡ_j(N') (``_octant_projection``: |N'·d| averaged over the directions d
-  of the octant) is deposited on the nodes of a grid of step h
-  (cloud-in-cell), the sum over nodes of mass × (1 - w(|v|)) 1_{octant j}(v)
-  / (Ω_j |v|²) is a discrete convolution done with FFTs (one kernel
-  spectrum, reflected for the 8 octants; the zero padding is not transformed
-  and only the kept corner is transformed back), and the result is
-  interpolated trilinearly back to every leaf. A leaf's own mass is
-  subtracted exactly (r_1 >= √2 h leaves only the cell diagonals, see
-  ``_interpolate``).
+  in the leaves: (1 - w(r)) o. The grid does not know P, so a leaf's
+  projected area A' |N'·d^| toward P is replaced, over the directions d of
+  octant j, by its least-squares linear fit a_j + β_j·|d| (``_octant_projection``;
+  one fit per octant pair j, 7 - j). The 4 coefficients are deposited on the
+  nodes of a grid (cloud-in-cell), the sum over nodes of mass × (1 - w(|v|))
+  1_{octant j}(v) (1, |v_x|, |v_y|, |v_z|)/|v| / (Ω_j |v|²) is a discrete
+  convolution done with FFTs (4 kernel spectra, reflected for the 8
+  octants; the zero padding is not transformed and only the kept corner is
+  transformed back), and the result is interpolated trilinearly back to
+  every leaf. A leaf's own mass is subtracted exactly (r_1 >= √2 h leaves
+  only the cell diagonals, see ``_interpolate``).
+* two grids (``EnvelopeParams.fast_fine_grid``, the default): the grid's
+  error is largest just beyond r_1, where 1/r² varies most across a cell and
+  the blur of the bin planes (below) is widest relative to r. So the far
+  field from r_1 to the mid range r_m (8 -> 10 cells, smoothstep) is summed on
+  a grid of step h/2 with the fit (its FFTs only need the padding of the
+  kernel's reach r_m, not of the whole grid), and beyond r_m on the grid of
+  step h with the fit's mean over the octant, a + Σ β/2 (where the grid is
+  accurate and the fit matters less).
 
-S1 = Σ o r (for τ) is split the same way with a 1/r kernel, sharing the
-deposit and forward transform. τ from the fast sums is multiplied by a
-calibration, exact/fast τ on ``fast_tau_leaves`` probe leaves whose bins are
-also summed exactly (the fast sums are a control variate: over random probe
-sets of 64 leaves at 40k leaves the calibrated τ scatters by 0.3%, the
-probes' own τ by 1.7%).
+S1 = Σ o r (for τ) is split the same way with a 1/r kernel. τ from the fast
+sums is multiplied by a calibration, exact/fast τ on ``fast_tau_leaves``
+probe leaves whose bins are also summed exactly (the fast sums are a control
+variate: over random probe sets of 64 leaves at 40k leaves the calibrated τ
+scatters by 0.3%, the probes' own τ by 1.7%). With two grids the sums for τ
+(D and S1 from r_1 on) come from the grid of step h alone: a bin's length 2
+S1 / D needs both sums blurred alike (D from two grids and S1 from one
+made nearly empty bins absurdly long, τ -12% at 40k leaves).
 
 Accuracy. On uniform balls (τ R = 2) the fast path's s_max differs from the
-reference's by a median 2.8% (95th percentile 12%) at 1.5k leaves, 2.0% (9%)
-at 6k, 1.7% (7%) at 20k, 1.2% (6.0%) at 40k and 0.9% (4.7%) at 100k, with τ
-within 0.6% (``benchmarks/bench_smax.py``; bins with s_max >= 0.05 R). At
-40k leaves (1000 leaves summed exactly; each cause alone, by all-pairs sums
-that include only it) the 95th percentile splits into: the octant-mean
-projected area in place of |N'·d^|, 3.3%; the grid's blur of the bin planes
-(a leaf within ~h of a plane through P is shared between octants), 3.7%; the
-rest of the grid error (cloud-in-cell interpolation of the 1/r² kernel),
-~2.6%; the linearisation -ln(1 - o) ≈ o, 0.17% (at r_1 = 1.5 h). The errors concentrate on the
-short bins: a leaf near the envelope sees, toward the outside, a thin sliver
-of crown along the bin planes, and the blur leaks depth into it from the
-full neighbouring octants (signed median +8% for s_max in [0.05, 0.1) R, +4%
-in [0.1, 0.2) R, -0.5% beyond 0.4 R). Neither grid nor split radius removes
-this at an affordable cost (95th percentile 4.2% with 8x the grid nodes,
-5.6% with 1.7x the near pairs). Cost: O(N ρ r_2³) near pairs, O(M log M) for
-M grid nodes and O(N_probe N) for the probes.
+reference's by a median 1.5% (95th percentile 7.1%) at 1.5k leaves, 1.7%
+(5.2%) at 6k, 0.9% (4.1%) at 20k, 0.7-0.8% (3.5-3.8%, two crowns) at 40k and
+0.6% (2.8%) at 100k, with τ within 1.2% (``benchmarks/bench_smax.py``; bins
+with s_max >= 0.05 R).
+On one grid of step h (``fast_fine_grid=False``): 1.0% (5.3%) at 40k, 0.8%
+(4.2%) at 100k; with that grid and the octant-mean projected area in place
+of the fit (before the fit): 1.2% (6.0%) and 0.9% (4.7%). At 40k leaves (1000
+leaves summed exactly, all-pairs sums that include only one cause) the
+projection alone gives a 95th percentile of 1.3% with the fit, 3.3% with the
+octant mean; the rest is the grid: cloud-in-cell interpolation of the 1/r²
+kernel and the blur of the bin planes (a leaf within ~h of a plane through
+P is shared between octants), mostly from r_1 to ~4 h (measured by shells on
+one grid: the 95th percentile of the grid error of a shell falls from 6% of
+the depth for 2.3-3.3 h to 0.8% beyond 10 h, for bins with s_max in [0.2,
+0.4) R); the linearisation -ln(1 - o) ≈ o adds 0.17% (at r_1 = 1.5 h). The
+errors concentrate on the short bins: a leaf near the envelope sees, toward
+the outside, a thin sliver of crown along the bin planes, and the blur leaks
+depth into it from the full neighbouring octants. Tried without gain: a
+Laplacian pre-correction of the kernel for the cloud-in-cell smoothing,
+averaging a second grid shifted by h/2 (the grid error is a bias, not
+aliasing), Richardson extrapolation in h (amplifies the cell-position
+noise). Cost: O(N ρ r_2³) near pairs, O(M log M) for M grid nodes (the fine
+grid has 8x the nodes of the coarse one: with it the fast path takes ~2x
+the time of one grid) and O(N_probe N) for the probes.
 
 Pure numpy + numba + scipy; no USD, no files, no printing.
 """
@@ -127,12 +146,12 @@ BIN_SOLID_ANGLE = 4.0 * math.pi / N_DIRECTIONS
 
 #: ``path="auto"`` uses the reference path below this many leaves and the fast
 #: path from it on. Measured on uniform balls (``benchmarks/bench_smax.py``):
-#: the fast path's s_max error against the reference falls with N (median 2.8%
-#: at 1.5k, 2.0% at 6k, 1.7% at 20k, 1.2% at 40k leaves; the 95th percentile
-#: 12%, 9%, 7%, 6%) while the reference's O(N²) cost grows (1.5 s at 20k
-#: leaves, 6.4 s at 40k on 2 shared cores). Below 20k the reference is
+#: the fast path's s_max error against the reference falls with N (median 1.5%
+#: at 1.5k, 1.7% at 6k, 0.9% at 20k, 0.8% at 40k leaves; the 95th percentile
+#: 7.1%, 5.2%, 4.1%, 3.5-3.8%) while the reference's O(N²) cost grows (0.7 s at
+#: 20k leaves, 2.7-5.5 s at 40k on 2 shared cores, with the load). Below 20k the reference is
 #: affordable and is the method itself; from 20k on the fast path's median
-#: error is below ~1.7%.
+#: error is below ~1%.
 AUTO_FAST_THRESHOLD = 20000
 
 TAU_ESTIMATORS = ("moments", "farthest")
@@ -251,16 +270,44 @@ class EnvelopeParams:
     """Fast path: mean number of leaves per grid cell over the leaves' bounding box;
     sets the cell size h."""
     fast_max_cells: int = 96
-    """Fast path: cap on grid cells along any axis (memory/FFT size bound)."""
+    """Fast path: cap on grid cells along any axis (memory/FFT size bound), for the
+    coarse grid and for the fine grid of ``fast_fine_grid`` (which is dropped when
+    the cap leaves it less than 4/3 finer than the coarse one)."""
     fast_blend_start_cells: float = 2.3
     """Fast path: r_1 in grid cells, where the near field starts to hand over to the
     far field. Must be >= √2: then the only grid offset within a cell that the far
     kernel sees is the cell diagonal, and a leaf's own mass is removed exactly.
     With r_2 = 2.5, r_1 = 2.3 (a short blend) costs no more pairs than 1.5 and
-    gives a smaller error (95th percentile at 40k leaves 6.1% instead of 7.4%):
-    the near field is exact over more of the pairs it computes anyway."""
+    gives a smaller error (95th percentile at 40k leaves 6.1% instead of 7.4%, one
+    grid, octant-mean projection): the near field is exact over more of the pairs
+    it computes anyway. With one grid and the projection fit (95th percentile at
+    40k leaves): r_1/r_2 = 2.3/2.5 5.33%, 2.0/2.5 5.98%, 2.3/2.6 5.40%, 2.5/2.7
+    5.27% (1.25x the pairs), 1.5/2.2 6.9% (0.7x)."""
     fast_split_cells: float = 2.5
     """Fast path: r_2 in grid cells, beyond which only the far field counts (> r_1)."""
+    fast_fine_grid: bool = True
+    """Fast path: compute the far field from r_1 to the mid range on a second grid of
+    half the cell size (``fast_fine_ratio``; 8x the nodes, FFTs only as large as the mid range needs)
+    and leave the grid of cell size h only the far field beyond it. The grid
+    errors are largest just beyond r_1, in cells: this lowers the 95th
+    percentile of the s_max error from 5.3% to 3.5% at 40k leaves (4.2% to 2.8%
+    at 100k) for ~2x the fast path's time (1.9-2.2x at 40k and 100k leaves, 2
+    shared cores). False: one grid, about the cost of the octant-mean version
+    (1.0-1.13x) with its error lowered from 6.0% / 4.7% by the projection fit."""
+    fast_fine_ratio: float = 0.5
+    """Fast path with ``fast_fine_grid``: the fine grid's cell size over h, in (0, 0.75].
+    95th percentile of the s_max error at 40k / 100k leaves and the fast path's
+    time relative to the octant-mean single grid it replaced (same process, 2
+    shared cores): 0.5: 3.5% / 2.8%, 1.9-2.0x; 0.6: 4.1% / 3.2%, 1.5x; 0.67:
+    4.2% / 3.3%, 1.4x; ``fast_fine_grid=False``: 5.3% / 4.2%, 1.1x."""
+    fast_mid_start_cells: float = 8.0
+    """Fast path with ``fast_fine_grid``: where the fine grid starts handing over to the
+    coarse one, in (coarse) cells; must exceed ``fast_split_cells``."""
+    fast_mid_end_cells: float = 10.0
+    """Fast path with ``fast_fine_grid``: beyond this (coarse cells) only the coarse grid
+    counts; must exceed ``fast_mid_start_cells``. The fine grid's FFT sizes are its
+    node counts + 2 × this (5-smooth): at 40k leaves 70 + 20 -> 90 per axis, the
+    same as with 6 -> 8 (95th percentile 3.64%) or 4 -> 5 (4.2%, sizes 80)."""
     fast_tau_leaves: int = 64
     """Fast path: leaves (seeded subsample) whose bins are also summed exactly (cost
     N per leaf; 64 keep the calibrated τ within ~0.3% at 40k leaves, ~1% at 2k). With
@@ -289,6 +336,18 @@ class EnvelopeParams:
             raise ValueError(
                 f"fast_split_cells ({self.fast_split_cells}) must exceed fast_blend_start_cells "
                 f"({self.fast_blend_start_cells})"
+            )
+        if not (0.0 < self.fast_fine_ratio <= 0.75):
+            raise ValueError(f"fast_fine_ratio must lie in (0, 0.75], got {self.fast_fine_ratio}")
+        if not (self.fast_mid_start_cells > self.fast_split_cells):
+            raise ValueError(
+                f"fast_mid_start_cells ({self.fast_mid_start_cells}) must exceed fast_split_cells "
+                f"({self.fast_split_cells})"
+            )
+        if not (self.fast_mid_end_cells > self.fast_mid_start_cells and math.isfinite(self.fast_mid_end_cells)):
+            raise ValueError(
+                f"fast_mid_end_cells ({self.fast_mid_end_cells}) must be finite and exceed fast_mid_start_cells "
+                f"({self.fast_mid_start_cells})"
             )
         if self.fast_split_cells >= self.fast_max_cells:
             raise ValueError(
@@ -319,7 +378,9 @@ class EnvelopeResult:
     stats: dict = field(default_factory=dict)
     """``leaves``, ``tau_estimator``, ``empty_bins``; fast path also ``grid`` (node
     counts), ``cell_size``, ``blend_start`` (r_1) and ``near_radius`` (r_2) in stage
-    units, ``near_pairs``, ``tau_sample_leaves`` and ``tau_correction``."""
+    units, ``near_pairs``, ``tau_sample_leaves`` and ``tau_correction``; with the fine
+    grid ``fine_grid`` (node counts) and ``mid_range`` (where it hands over to the
+    coarse grid, stage units)."""
 
 
 # --------------------------------------------------------------------------
@@ -389,7 +450,7 @@ def solve(centres, normals, areas, *, up=(0.0, 0.0, 1.0), params: EnvelopeParams
         depth, far, s1 = _reference_depths(x, nl, a, np.arange(n_leaves, dtype=np.int64), params.max_occlusion)
         tau = _estimate_tau(depth, far, s1, params.tau_estimator)
     else:
-        depth, s1, fast_stats = _fast_depths(x, nl, a, params)
+        depth, tau_depth, s1, fast_stats = _fast_depths(x, nl, a, params)
         stats.update(fast_stats)
         probes = _tau_probes(n_leaves, params.fast_tau_leaves, params.seed)
         pdepth, pfar, ps1 = _reference_depths(x, nl, a, probes, params.max_occlusion)
@@ -399,8 +460,8 @@ def solve(centres, normals, areas, *, up=(0.0, 0.0, 1.0), params: EnvelopeParams
             # probes (exact / fast on the same leaves): removes the fast sums'
             # bias (the grid blurs the bin planes, which leaks a little light
             # path into the outward bins of leaves at the envelope)
-            tau = _estimate_tau(depth, None, s1, "moments")
-            fast_on_probes = _estimate_tau(depth[probes], None, s1[probes], "moments")
+            tau = _estimate_tau(tau_depth, None, s1, "moments")
+            fast_on_probes = _estimate_tau(tau_depth[probes], None, s1[probes], "moments")
             if fast_on_probes > 0.0:
                 correction = _estimate_tau(pdepth, None, ps1, "moments") / fast_on_probes
                 stats["tau_correction"] = float(correction)
@@ -534,8 +595,8 @@ _FAR_FIELD_MAX_OCCLUSION = 0.1
 
 def _grid_for(x: np.ndarray, area: np.ndarray, params: EnvelopeParams) -> tuple[np.ndarray, float, tuple[int, int, int]]:
     """Origin, cell size h and node counts of the fast path's grid (nodes at origin + i h)."""
-    lo = x.min(axis=0)
-    ext = x.max(axis=0) - lo
+    lo = _axis_min(x)
+    ext = _axis_max(x) - lo
     longest = float(ext.max())
     if longest == 0.0:
         longest = 1.0
@@ -585,13 +646,15 @@ def _axis_gap(p: float, lo: float, hi: float) -> float:
 _NEAR_BLOCK = 128
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
-def _near_kernel(x, an, cell, start, lo, h, shape, r1, r2, inv_omega, max_occ, depth, s1):
+@njit(parallel=True, cache=True, error_model="numpy", fastmath=True)
+def _near_kernel(x, an, cell, start, order, lo, h, shape, r1, r2, inv_omega, max_occ, depth, s1):
     """Exact near-field sums: w(r) -ln(1 - o) into ``depth`` and w(r) o r into ``s1``.
 
     Leaves are sorted by cell (``start``: CSR offsets of cells of size
-    ``h`` >= r_2/2, so neighbours lie at most 2 cells away); ``an`` is area ×
-    unit normal. Every unordered pair is visited once, from its lower sorted
+    ``h`` >= r_2/2, so neighbours lie at most 2 cells away; ``order``: the
+    caller's index of each sorted leaf, under which the sums are written);
+    ``an`` is area × unit normal. fastmath: the sums may be reassociated
+    (changes ~1e-15 relative; all inputs are finite). Every unordered pair is visited once, from its lower sorted
     index p, and adds to both leaves: o(p, q) = A_q |N_q·d^|/(Ω r²) to p's bin
     b of d = q - p, o(q, p) = A_p |N_p·d^|/(Ω r²) to q's bin 7 - b (the
     opposite octant). A leaf p in the slab of cells i along the first axis
@@ -663,8 +726,10 @@ def _near_kernel(x, an, cell, start, lo, h, shape, r1, r2, inv_omega, max_occ, d
                                 acc[q, 7 - b] += w * _neg_log1m(o_qp)
                                 acc1[q, 7 - b] += w * o_qp * r
             pairs[i_home] = npairs
-    depth[:] = acc
-    s1[:] = acc1
+    for p in prange(n_leaves):  # back to the caller's leaf order
+        for b in range(8):
+            depth[order[p], b] = acc[p, b]
+            s1[order[p], b] = acc1[p, b]
     return 2 * pairs.sum()
 
 
@@ -682,7 +747,11 @@ def _cell(x, i, lo, h, shape):
 
 @njit(cache=True)
 def _deposit(x, mass, lo, h, shape, grid):
-    """Cloud-in-cell deposit of per-leaf masses (L, 4) onto 4 node grids."""
+    """Cloud-in-cell deposit of per-leaf masses (L, G) onto the node grid (nx, ny, nz, G).
+
+    Channels last: a node's G channels share cache lines (2x faster than G
+    separate grids at G = 16, 40k leaves).
+    """
     for i in range(x.shape[0]):
         i0, j0, k0, fu, fv, fw = _cell(x, i, lo, h, shape)
         for di in range(2):
@@ -693,11 +762,11 @@ def _deposit(x, mass, lo, h, shape, grid):
                     wk = fw if dk else 1.0 - fw
                     wt = wu * wv * wk
                     for g in range(mass.shape[1]):
-                        grid[g, i0 + di, j0 + dj, k0 + dk] += wt * mass[i, g]
+                        grid[i0 + di, j0 + dj, k0 + dk, g] += wt * mass[i, g]
 
 
 @njit(parallel=True, cache=True)
-def _interpolate(x, lo, h, shape, field, mass, kdiag, floor, out):
+def _interpolate(x, lo, h, shape, field, own_mass, kdiag, floor, out):
     """Far-field sums at the leaves, added to ``out`` (L, 8), from node fields (8, nx, ny, nz).
 
     Trilinear (cloud-in-cell) interpolation of octant j's field; a value below
@@ -705,8 +774,10 @@ def _interpolate(x, lo, h, shape, field, mass, kdiag, floor, out):
     the leaf's own mass is removed: it was deposited on the 8 nodes of its
     cell and is read back through the same nodes, and with r_1 >= √2 h the
     kernel vanishes on all offsets within a cell except the 8 cell diagonals,
-    one per octant, each with weight Π f(1 - f): ``kdiag`` × that × the
-    leaf's mass for octant pair min(j, 7 - j).
+    one per octant, each with weight Π f(1 - f): ``kdiag`` (the kernels'
+    scale h^-power) × that × ``own_mass`` (L, 4), the leaf's masses times the
+    kernels on the diagonal (h = 1, ``_far_kernel_spectra``), for octant pair
+    min(j, 7 - j).
     """
     for i in prange(x.shape[0]):
         i0, j0, k0, fu, fv, fw = _cell(x, i, lo, h, shape)
@@ -725,11 +796,16 @@ def _interpolate(x, lo, h, shape, field, mass, kdiag, floor, out):
                         val += wu * wv * wk * field[b, i0 + di, j0 + dj, k0 + dk]
             if val < floor:
                 val = 0.0
-            out[i, b] += val - own * mass[i, min(b, 7 - b)]
+            out[i, b] += val - own * own_mass[i, min(b, 7 - b)]
+
+
+#: Gauss-Legendre order (per angle) of the octant quadrature behind the projection fit
+#: (order 4 to 8 give the same s_max errors to 0.01%).
+_PROJECTION_ORDER = 4
 
 
 @lru_cache(maxsize=4)
-def _octant_quadrature(order: int = 4) -> np.ndarray:
+def _octant_quadrature(order: int = _PROJECTION_ORDER) -> np.ndarray:
     """Directions and weights (Q, 4) of a product rule on the octant x, y, z > 0 (weights sum to 1).
 
     Uniform in solid angle: Gauss-Legendre in μ = y ∈ (0, 1) and in φ ∈ (0, π/2).
@@ -747,125 +823,255 @@ def _octant_quadrature(order: int = 4) -> np.ndarray:
     return out
 
 
+@lru_cache(maxsize=4)
+def _projection_fit_matrix(order: int = _PROJECTION_ORDER) -> np.ndarray:
+    """(4, Q) weighted least-squares operator: values f(e_q) at the octant quadrature -> (a, β_x, β_y, β_z).
+
+    Minimises Σ_q w_q (f(e_q) - a - β·e_q)² over the octant's directions e
+    (e > 0), i.e. the L² fit over the octant's solid angle of a linear function.
+    """
+    quad = _octant_quadrature(order)
+    e1 = np.concatenate([np.ones((quad.shape[0], 1)), quad[:, :3]], axis=1)
+    ew = e1 * quad[:, 3:]
+    fit = np.linalg.solve(e1.T @ ew, ew.T)
+    fit.setflags(write=False)
+    return fit
+
+
 @njit(parallel=True, cache=True)
-def _octant_projection_kernel(nl, area, quad, out):
+def _octant_projection_kernel(nl, area, quad, fit, out):
+    nq = quad.shape[0]
     for i in prange(nl.shape[0]):
+        f = np.empty((4, nq))
+        for k in range(nq):
+            # octant j (y < 0; x > 0 if j & 1, z > 0 if j & 2): d = S_j e with e in the positive octant
+            px = nl[i, 0] * quad[k, 0]
+            py = -nl[i, 1] * quad[k, 1]
+            pz = nl[i, 2] * quad[k, 2]
+            f[0, k] = area[i] * abs(-px + py - pz)
+            f[1, k] = area[i] * abs(px + py - pz)
+            f[2, k] = area[i] * abs(-px + py + pz)
+            f[3, k] = area[i] * abs(px + py + pz)
         for j in range(4):
-            sx = 1.0 if j & 1 else -1.0
-            sz = 1.0 if j & 2 else -1.0
-            acc = 0.0
-            for k in range(quad.shape[0]):
-                acc += quad[k, 3] * abs(sx * nl[i, 0] * quad[k, 0] - nl[i, 1] * quad[k, 1] + sz * nl[i, 2] * quad[k, 2])
-            out[i, j] = area[i] * acc
+            for c in range(4):
+                acc = 0.0
+                for k in range(nq):
+                    acc += fit[c, k] * f[j, k]
+                out[i, j, c] = acc
 
 
 def _octant_projection(nl: np.ndarray, area: np.ndarray) -> np.ndarray:
-    """(L, 4) A × mean of |N·d| over the directions d of octant j (= of octant 7 - j), j = 0..3.
+    """(L, 4, 4): per octant pair j = 0..3 the linear fit (a, β_x, β_y, β_z) of A |N·d| over octant j.
 
-    The far field uses this octant-averaged projected area in place of
-    A |N·d^| (the leaf's actual direction from P is not known on the grid).
+    boulanger2008 sec. 5.6: a leaf q occludes A |N·d^|/r² of the solid angle
+    around P, d^ = (q - P)/r. The far field cannot use the exact d^ (the
+    grid does not know P), so over the directions d^ of octant j it uses the
+    least-squares linear fit A |N·d^| ≈ a + Σ_k β_k |d^_k| (L² over the
+    octant's solid angle). |N·d| is the same on octant j and on 7 - j (d -> -d)
+    and so is |d_k|: one fit per octant pair. The far field then needs 4
+    deposits per pair (a, β) and 4 kernels (1, |v_x|/r, |v_y|/r, |v_z|/r)
+    times (1 - w) / (Ω r^power). Compared with the octant-mean projected area
+    (a only, β = 0), the projection's own error (all-pairs far sums with only
+    this approximation, 40k leaves) falls from a 95th percentile of 3.3% of
+    the depth to 1.3%; the fast path's s_max error from 6.0% to 5.3% on one
+    grid (the rest is the grid's).
     """
-    out = np.empty((nl.shape[0], 4))
-    _octant_projection_kernel(nl, area, np.ascontiguousarray(_octant_quadrature()), out)
+    out = np.empty((nl.shape[0], 4, 4))
+    _octant_projection_kernel(
+        nl, area, np.ascontiguousarray(_octant_quadrature()), np.ascontiguousarray(_projection_fit_matrix()), out
+    )
     return out
 
 
-def _far_kernel_spectrum(shape, pad, h, r1, r2, power):
-    """rFFT (complex64) of the far-field kernel of octant 0 (x, y, z < 0), for correlation.
+def _smoothstep_down(r, r_a: float, r_b: float):
+    """1 for r <= r_a, 0 for r >= r_b, the C¹ smoothstep between (the near/far blend w)."""
+    t = np.clip((r_b - r) / (r_b - r_a), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
 
-    (1 - w(r)) / (Ω r^power) times the octant membership (1/2 per zero component:
-    the node sits on a bin plane); power 2 gives the linearised optical depth of
-    eq. (1), power 1 gives S1 = Σ o r. Correlation D(x) = Σ_v K(v) m(x + v) is a
-    convolution with K(-v), whose support -v >= 0 fills the corner [0, s) of
-    the wrap-around array.
+
+def _band_weight(r, band):
+    """Radial weight of a far-field band (r_a, r_b, r_c, r_d) in cells: (1 - w(r_a, r_b)) w(r_c, r_d).
+
+    0 up to r_a, rising to 1 at r_b (the hand-over from the near field or a
+    finer grid), falling from 1 at r_c to 0 at r_d (the hand-over to a coarser
+    grid; r_c = inf: none).
     """
-    ii, jj, kk = np.meshgrid(*[np.arange(s, dtype=np.float64) for s in shape], indexing="ij", sparse=True)
+    r_a, r_b, r_c, r_d = band
+    w = np.where(r > r_a, 1.0 - _smoothstep_down(r, r_a, r_b), 0.0)
+    if math.isfinite(r_c):
+        w = w * _smoothstep_down(r, r_c, r_d)
+    return w
+
+
+@lru_cache(maxsize=8)
+def _far_kernel_spectra(shape, pad, band, power: int, fit: bool) -> tuple[np.ndarray, np.ndarray]:
+    """rFFTs complex64 of the far-field kernels of octant 0 (x, y, z < 0), for correlation, with h = 1.
+
+    K_0(v) = ``_band_weight``(|v|) / (Ω |v|^power) times the octant membership
+    (1/2 per zero component: the node sits on a bin plane). ``fit``: 4
+    kernels, K_0 and K_0 |v_k| / |v| for k = x, y, z (the linear terms of the
+    projection fit, see ``_octant_projection``); else K_0 alone. power 2
+    gives the linearised optical depth of eq. (1), power 1 gives S1 = Σ o r.
+    For a cell size h the kernels scale by h^-power. Correlation D(x) = Σ_v
+    K(v) m(x + v) is a convolution with K(-v), whose support -v >= 0 fills
+    the corner [0, extent) of the wrap-around array (extent: the band's outer
+    radius, or the grid). Also returns the kernels' values on the cell
+    diagonal (1, 1, 1) (see ``_interpolate``). Cached (read-only): the same
+    grid shape gives the same spectra.
+    """
+    extent = [s if not math.isfinite(band[3]) else min(s, math.ceil(band[3]) + 1) for s in shape]
+    ii, jj, kk = np.meshgrid(*[np.arange(s, dtype=np.float64) for s in extent], indexing="ij", sparse=True)
     frac = np.where(ii == 0, 0.5, 1.0) * np.where(jj == 0, 0.5, 1.0) * np.where(kk == 0, 0.5, 1.0)
-    r = h * np.sqrt(ii * ii + jj * jj + kk * kk)
-    t = np.clip((r2 - r) / (r2 - r1), 0.0, 1.0)
-    weight = np.where(r > r1, frac * (1.0 - t * t * (3.0 - 2.0 * t)), 0.0)
-    kern = (weight / (BIN_SOLID_ANGLE * np.maximum(r, r1) ** power)).astype(np.float32)
-    return _rfftn_padded(kern[None], pad)[0]
+    r = np.sqrt(ii * ii + jj * jj + kk * kk)
+    rr = np.maximum(r, 1.0)  # the weight is 0 below r_a >= √2
+    k0 = frac * _band_weight(r, band) / (BIN_SOLID_ANGLE * rr**power)
+    comps = (ii, jj, kk) if fit else ()
+    kern = np.empty((1 + len(comps),) + tuple(extent), dtype=np.float32)
+    kern[0] = k0
+    for c, comp in enumerate(comps):
+        kern[c + 1] = k0 * comp / rr
+    spec = _rfftn_padded(kern, pad)
+    spec.setflags(write=False)
+    diag = math.sqrt(3.0)
+    kd = float(_band_weight(np.array(diag), band)) / (BIN_SOLID_ANGLE * diag**power)
+    kdiag = np.array([kd] + [kd / diag] * len(comps))
+    kdiag.setflags(write=False)
+    return spec, kdiag
 
 
-def _rfftn_padded(grid: np.ndarray, pad) -> np.ndarray:
+def _rfftn_padded(grid: np.ndarray, pad, out: np.ndarray | None = None) -> np.ndarray:
     """``scipy.fft.rfftn(grid, s=pad, axes=(1, 2, 3))`` without transforming the zero padding.
 
     The input fills only the corner [0, s) of the padded box, so each 1-D pass
     runs over the rows that are not all zero: the last axis on s0 s1 rows, the
-    middle one on s0 (p2/2+1) rows, the first one on p1 (p2/2+1) rows.
+    first one on s1 (p2/2+1) rows, the middle one on p0 (p2/2+1) rows (the
+    strided first axis before the middle one: ~1.5x faster at 36³ -> 72³).
+    The passes run in place in ``out`` (complex64, (G, p0, p1, p2/2+1)) if
+    given: reusing one buffer avoids touching fresh memory for every call.
     """
-    out = scipy.fft.rfft(grid, n=pad[2], axis=3, workers=-1)
-    out = scipy.fft.fft(out, n=pad[1], axis=2, workers=-1, overwrite_x=True)
-    return scipy.fft.fft(out, n=pad[0], axis=1, workers=-1, overwrite_x=True)
+    g, s0, s1, _ = grid.shape
+    if out is None:
+        out = np.empty((g, pad[0], pad[1], pad[2] // 2 + 1), dtype=np.complex64)
+    out[:, :s0, :s1] = scipy.fft.rfft(grid, n=pad[2], axis=3, workers=-1)
+    out[:, s0:, :s1] = 0.0
+    scipy.fft.fft(out[:, :, :s1], axis=1, workers=-1, overwrite_x=True)
+    out[:, :, s1:] = 0.0
+    scipy.fft.fft(out, axis=2, workers=-1, overwrite_x=True)
+    return out
 
 
 def _irfftn_cropped(spec: np.ndarray, pad, shape) -> np.ndarray:
     """``scipy.fft.irfftn(spec, s=pad, axes=(1, 2, 3))[:, :s0, :s1, :s2]`` computing only the kept corner.
 
     The inverse passes are separable, so cropping each axis right after its
-    pass gives the same values while the later passes run on fewer rows.
+    pass gives the same values while the later passes run on fewer rows. The
+    first two passes run in place: ``spec`` is overwritten.
     """
-    out = scipy.fft.ifft(spec, axis=1, workers=-1)[:, : shape[0]]
-    out = scipy.fft.ifft(out, axis=2, workers=-1, overwrite_x=True)[:, :, : shape[1]]
-    return scipy.fft.irfft(out, n=pad[2], axis=3, workers=-1)[..., : shape[2]]
+    scipy.fft.ifft(spec, axis=1, workers=-1, overwrite_x=True)
+    out = spec[:, : shape[0]]
+    scipy.fft.ifft(out, axis=2, workers=-1, overwrite_x=True)
+    return scipy.fft.irfft(out[:, :, : shape[1]], n=pad[2], axis=3, workers=-1)[..., : shape[2]]
 
 
-def _far_field(x, mass, lo, h, shape, r1, r2, powers) -> list[np.ndarray]:
-    """Far-field sums Σ_{q != P} m_q (1 - w) 1_{octant j} / (Ω r^power) at the leaves, on a grid of step h.
+def _grid_pad(shape, band) -> tuple[int, int, int]:
+    """FFT sizes for a linear (not wrap-around) correlation of the grid with a band's kernel.
 
-    One (L, 8) array per entry of ``powers``; the masses are deposited and
-    transformed once for all of them.
+    A kernel reaching S cells needs s + S (zero padding catches what wraps
+    around); the whole grid, 2 s - 1.
     """
+    reach = math.ceil(band[3]) if math.isfinite(band[3]) else None
+    return tuple(
+        scipy.fft.next_fast_len(2 * s - 1 if reach is None else min(s + reach, 2 * s - 1), real=True) for s in shape
+    )
+
+
+def _far_field(x, mass, lo, h, shape, kernels) -> list[np.ndarray]:
+    """Far-field sums Σ_{q != P} band(r) 1_{octant j} m_q(v^) / (Ω r^power) at the leaves, grid of step h.
+
+    ``mass`` (L, 4, C): per leaf and octant pair, C = 4: the projection fit
+    (a, β_x, β_y, β_z) of ``_octant_projection``, m_q(v^) = a + β·|v^|; C =
+    1: a mass without direction. ``kernels``: (band in cells, power) pairs,
+    see ``_band_weight``; all bands must share the FFT sizes, i.e. the outer
+    radius of the first. One (L, 8) array per kernel. The masses are deposited
+    once; each octant pair's C channels are transformed once and multiplied
+    into the spectra of its two octants (one pair at a time keeps the
+    transform's buffers at a quarter of the size).
+    """
+    shape = tuple(int(s) for s in shape)
     shape_arr = np.array(shape, dtype=np.int64)
-    grid = np.zeros((4,) + tuple(shape), dtype=np.float32)
-    _deposit(x, mass, lo, h, shape_arr, grid)
-    pad = tuple(scipy.fft.next_fast_len(2 * s - 1, real=True) for s in shape)
-    mspec = _rfftn_padded(grid, pad)
-    del grid
-    specs = np.empty((N_DIRECTIONS,) + mspec.shape[1:], dtype=mspec.dtype)
+    n_leaves, _, nc = mass.shape
+    grid = np.zeros(shape + (4 * nc,), dtype=np.float32)
+    _deposit(x, np.ascontiguousarray(mass.reshape(n_leaves, 4 * nc)), lo, h, shape_arr, grid)
+    pad = _grid_pad(shape, kernels[0][0])
+    kspecs = [_far_kernel_spectra(shape, pad, tuple(round(b, 12) for b in band), int(power), nc == 4) for band, power in kernels]
+    specs = [np.empty((N_DIRECTIONS,) + kspecs[0][0].shape[1:], dtype=np.complex64) for _ in kernels]
+    mspec = np.empty((nc,) + specs[0].shape[1:], dtype=np.complex64)
+    for pair in range(4):
+        _rfftn_padded(np.ascontiguousarray(np.moveaxis(grid[..., nc * pair : nc * (pair + 1)], 3, 0)), pad, mspec)
+        for (_, power), (kspec, _), spec in zip(kernels, kspecs, specs):
+            _octant_spectra(mspec, kspec, np.float32(h ** (-power)), pair, spec)
+    del grid, mspec
     results = []
-    for power in powers:
-        _octant_spectra(mspec, _far_kernel_spectrum(shape, pad, h, r1, r2, power), specs)
-        fields = np.ascontiguousarray(_irfftn_cropped(specs, pad, shape))
-        # kernel on the cell diagonal √3 h, for the leaf's own mass (see _interpolate)
-        diag = math.sqrt(3.0) * h
-        t = min(max((r2 - diag) / (r2 - r1), 0.0), 1.0)
-        kdiag = (1.0 - t * t * (3.0 - 2.0 * t)) / (BIN_SOLID_ANGLE * diag**power)
+    for (_, power), (_, kdiag), spec in zip(kernels, kspecs, specs):
+        fields = _irfftn_cropped(spec, pad, shape)  # a cropped view: read in place
+        # the leaf's own mass read back through the cell diagonals (see _interpolate)
+        own_mass = np.ascontiguousarray(mass @ kdiag)
         # float32 FFT round-off (~1e-7 of the largest value) would leave empty bins
         # slightly non-zero: what is below 1e-6 of the largest counts as 0
-        floor = 1e-6 * float(np.abs(fields).max(initial=0.0))
-        out = np.zeros((x.shape[0], N_DIRECTIONS))
-        _interpolate(x, lo, h, shape_arr, fields, mass, kdiag, floor, out)
+        floor = 1e-6 * max(float(fields.max(initial=0.0)), -float(fields.min(initial=0.0)))
+        out = np.zeros((n_leaves, N_DIRECTIONS))
+        _interpolate(x, lo, h, shape_arr, fields, own_mass, h ** (-power), floor, out)
         results.append(out)
     return results
 
 
 @njit(parallel=True, cache=True)
-def _octant_spectra(mspec, kspec, out):
-    """out[j] = mspec[min(j, 7 - j)] × spectrum of octant j's kernel, from octant 0's ``kspec``.
+def _octant_spectra(mspec, kspec, scale, j, out):
+    """out[j], out[7 - j] = scale × Σ_c mspec[c] × spectrum of kernel c of that octant (j < 4).
 
-    Octant j's kernel is octant 0's reflected along the axes where j is
-    positive (x if j&1, y if j&4, z if j&2): k_j(u) = k_0(S u), whose spectrum
-    is F[k_0](S ξ). The last axis of an rFFT holds only ξ3 >= 0, so a flip of
-    it uses F(ξ1, ξ2, -ξ3) = conj F(-ξ1, -ξ2, ξ3), true for any real kernel.
+    ``mspec`` holds the C channels of octant pair j, ``kspec`` octant 0's C
+    kernels. Octant j's kernels are octant 0's reflected along the axes where
+    j is positive (x if j&1, z if j&2; y is negative for j < 4): k_j(u) =
+    k_0(S u) (the |v_k| factors are unchanged by reflections), whose
+    spectrum is F[k_0](S ξ). The last axis of an rFFT holds only ξ3 >= 0, so
+    a flip of it uses F(ξ1, ξ2, -ξ3) = conj F(-ξ1, -ξ2, ξ3), true for any
+    real kernel. Octant 7 - j is octant j reflected along all three axes, so
+    its spectrum is the conjugate of octant j's: both come from the same four
+    real products per channel.
     """
-    p0, p1, n2 = kspec.shape
+    nc, p0, p1, n2 = kspec.shape
+    conj = (j & 2) != 0
+    neg0 = (j & 1) != 0
+    if conj:
+        neg0 = not neg0
+    sgn = np.float32(-1.0) if conj else np.float32(1.0)
     for i0 in prange(p0):
         a0 = np.int64(i0)  # prange's index may be unsigned: keep the reflected index an integer
-        for j in range(8):
-            pair = j if j < 4 else 7 - j
-            conj = (j & 2) != 0
-            neg0 = ((j & 1) != 0) != conj
-            neg1 = ((j & 4) != 0) != conj
-            k0 = (p0 - a0) % p0 if neg0 else a0
-            for i1 in range(p1):
-                k1 = (p1 - i1) % p1 if neg1 else i1
+        k0 = (p0 - a0) % p0 if neg0 else a0
+        # float32 sums over the channels of Re m Re k, Im m Im k, Re m Im k, Im m Re k, one row at a time
+        rr = np.empty(n2, dtype=np.float32)
+        ii = np.empty(n2, dtype=np.float32)
+        ri = np.empty(n2, dtype=np.float32)
+        ir = np.empty(n2, dtype=np.float32)
+        for i1 in range(p1):
+            k1 = (p1 - i1) % p1 if conj else i1
+            rr[:] = 0.0
+            ii[:] = 0.0
+            ri[:] = 0.0
+            ir[:] = 0.0
+            for c in range(nc):
                 for i2 in range(n2):
-                    kv = kspec[k0, k1, i2]
-                    if conj:
-                        kv = kv.conjugate()
-                    out[j, i0, i1, i2] = mspec[pair, i0, i1, i2] * kv
+                    kv = kspec[c, k0, k1, i2]
+                    mv = mspec[c, i0, i1, i2]
+                    kr = kv.real
+                    ki = sgn * kv.imag
+                    rr[i2] += mv.real * kr
+                    ii[i2] += mv.imag * ki
+                    ri[i2] += mv.real * ki
+                    ir[i2] += mv.imag * kr
+            for i2 in range(n2):
+                out[j, i0, i1, i2] = complex(scale * (rr[i2] - ii[i2]), scale * (ri[i2] + ir[i2]))
+                out[7 - j, i0, i1, i2] = complex(scale * (rr[i2] + ii[i2]), scale * (ir[i2] - ri[i2]))
 
 
 def _near_sums(x, nl, area, lo, r1, r2, max_occlusion) -> tuple[np.ndarray, np.ndarray, int]:
@@ -876,30 +1082,62 @@ def _near_sums(x, nl, area, lo, r1, r2, max_occlusion) -> tuple[np.ndarray, np.n
     (neighbours at most 2 cells away), leaves sorted by cell.
     """
     hn = 0.5 * r2
-    nshape = np.array([math.floor(e / hn) + 2 for e in (x.max(axis=0) - lo)], dtype=np.int64)
-    cell, lin = _cell_index(x, lo, hn, nshape)
-    n_cells = int(np.prod(nshape))
-    order = np.argsort(lin, kind="stable")
-    start = np.zeros(n_cells + 1, dtype=np.int64)
-    np.cumsum(np.bincount(lin, minlength=n_cells), out=start[1:])
-    depth_s = np.empty((x.shape[0], N_DIRECTIONS))
-    s1_s = np.empty_like(depth_s)
-    pairs = _near_kernel(
-        np.ascontiguousarray(x[order]), np.ascontiguousarray((nl * area[:, None])[order]), cell[order], start, lo,
-        hn, nshape, r1, r2, 1.0 / BIN_SOLID_ANGLE, float(max_occlusion), depth_s, s1_s,
-    )
-    depth = np.empty_like(depth_s)
-    s1 = np.empty_like(s1_s)
-    depth[order] = depth_s
-    s1[order] = s1_s
+    nshape = np.array([math.floor(e / hn) + 2 for e in (_axis_max(x) - lo)], dtype=np.int64)
+    order, start, xs, ans, cs = _cell_sort(x, nl * area[:, None], lo, hn, nshape)
+    depth = np.empty((x.shape[0], N_DIRECTIONS))
+    s1 = np.empty_like(depth)
+    pairs = _near_kernel(xs, ans, cs, start, order, lo, hn, nshape, r1, r2, 1.0 / BIN_SOLID_ANGLE,
+                         float(max_occlusion), depth, s1)
     return depth, s1, int(pairs)
 
 
-def _fast_depths(x, nl, area, params: EnvelopeParams) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Optical depth D and S1 = Σ o r of every bin of every leaf: exact near field + FFT far field."""
+@njit(cache=True)
+def _cell_sort(x, an, lo, h, shape):
+    """Counting sort of the leaves by cell: (order, CSR offsets ``start``, x, an, cell in that order)."""
+    n = x.shape[0]
+    cell, lin = _cell_index(x, lo, h, shape)
+    n_cells = shape[0] * shape[1] * shape[2]
+    start = np.zeros(n_cells + 1, dtype=np.int64)
+    for i in range(n):
+        start[lin[i] + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        order[fill[lin[i]]] = i
+        fill[lin[i]] += 1
+    xs = np.empty_like(x)
+    ans = np.empty_like(an)
+    cs = np.empty_like(cell)
+    for k in range(n):
+        i = order[k]
+        for a in range(3):
+            xs[k, a] = x[i, a]
+            ans[k, a] = an[i, a]
+            cs[k, a] = cell[i, a]
+    return order, start, xs, ans, cs
+
+
+def _axis_min(x: np.ndarray) -> np.ndarray:
+    # per column: ~20x faster than x.min(axis=0) on a C-ordered (L, 3) array
+    return np.array([x[:, a].min() for a in range(x.shape[1])])
+
+
+def _axis_max(x: np.ndarray) -> np.ndarray:
+    return np.array([x[:, a].max() for a in range(x.shape[1])])
+
+
+def _fast_depths(x, nl, area, params: EnvelopeParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Optical depth D of every bin of every leaf (exact near field + FFT far field), and for τ D and S1 = Σ o r.
+
+    The sums for τ are D itself on a single grid; with ``fast_fine_grid`` they
+    come from the coarse grid alone (see there).
+    """
     n_leaves = x.shape[0]
     if n_leaves < 2:
-        return np.zeros((n_leaves, N_DIRECTIONS)), np.zeros((n_leaves, N_DIRECTIONS)), {}
+        zero = np.zeros((n_leaves, N_DIRECTIONS))
+        return zero, zero, zero, {}
     lo, h, shape = _grid_for(x, area, params)
     r2 = params.fast_split_cells * h
     r1 = params.fast_blend_start_cells * h
@@ -908,13 +1146,42 @@ def _fast_depths(x, nl, area, params: EnvelopeParams) -> tuple[np.ndarray, np.nd
     depth, s1, pairs = _near_sums(x, nl, area, lo, r1, r2, float(params.max_occlusion))
     stats["near_pairs"] = pairs
 
-    # far field: mean projected area per octant pair, deposited on the nodes
+    # far field: per leaf and octant pair, the linear fit of the projected area
     mass = _octant_projection(nl, area)
     # larger leaves than the grid was sized for (above the 99th percentile):
-    # cap their far-field occlusion at r_1 to the most one leaf can give, -ln(1 - max_occlusion)
-    np.minimum(mass, -math.log1p(-params.max_occlusion) * BIN_SOLID_ANGLE * r1 * r1, out=mass)
-    # optical depth (kernel 1/r², eq. (1) linearised) and S1 = Σ o r (kernel 1/r)
-    far_depth, far_s1 = _far_field(x, mass, lo, h, shape, r1, r2, (2, 1))
-    depth += far_depth
+    # cap their mean far-field occlusion at r_1 to the most one leaf can give, -ln(1 - max_occlusion)
+    # (the fit's mean over the octant is a + (β_x + β_y + β_z)/2: |d_k| averages 1/2 there)
+    mean = mass[:, :, 0] + 0.5 * mass[:, :, 1:].sum(axis=2)
+    cap = -math.log1p(-params.max_occlusion) * BIN_SOLID_ANGLE * r1 * r1
+    scale = cap / np.maximum(mean, cap)
+    mass *= scale[:, :, None]
+    mean = np.ascontiguousarray((mean * scale)[:, :, None])
+    near_band = (params.fast_blend_start_cells, params.fast_split_cells, math.inf, math.inf)
+    # the fine grid: fast_fine_ratio × the cell size, at most fast_max_cells cells along an axis
+    ext = _axis_max(x) - lo
+    h_fine = max(params.fast_fine_ratio * h, float(ext.max()) / (params.fast_max_cells - 2))
+    if params.fast_fine_grid and h_fine <= 0.75 * h:
+        # optical depth (kernel 1/r², eq. (1) linearised): from r_1 to the mid range on the
+        # fine grid with the projection fit, beyond it on the grid of step h with the fit's
+        # octant mean. For τ, depth and S1 = Σ o r (kernel 1/r) from r_1 on, on the grid of
+        # step h alone: a bin's length 2 S1 / D needs both sums blurred alike (a bin nearly
+        # empty on one grid but not on the other would get an absurd length)
+        shape_fine = tuple(math.floor(e / h_fine) + 2 for e in ext)
+        mid = (params.fast_mid_start_cells, params.fast_mid_end_cells)
+        stats["fine_grid"] = list(shape_fine)
+        stats["mid_range"] = [mid[0] * h, mid[1] * h]
+        fine_band = tuple(b * h / h_fine for b in near_band[:2] + mid)
+        (far_depth,) = _far_field(x, mass, lo, h_fine, shape_fine, [(fine_band, 2)])
+        coarse_band = mid + (math.inf, math.inf)
+        coarse_depth, tau_far, far_s1 = _far_field(x, mean, lo, h, shape, [(coarse_band, 2), (near_band, 2), (near_band, 1)])
+        far_depth += coarse_depth
+        tau_depth = np.maximum(depth + tau_far, 0.0)
+        depth += far_depth
+    else:
+        # one grid of step h with the projection fit: optical depth and S1 = Σ o r
+        far_depth, far_s1 = _far_field(x, mass, lo, h, shape, [(near_band, 2), (near_band, 1)])
+        depth += far_depth
+        tau_depth = None
     s1 += far_s1
-    return np.maximum(depth, 0.0), np.maximum(s1, 0.0), stats
+    depth = np.maximum(depth, 0.0)
+    return depth, depth if tau_depth is None else tau_depth, np.maximum(s1, 0.0), stats
