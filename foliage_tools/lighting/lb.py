@@ -81,13 +81,17 @@ R = 3 / 57 against 61 / 101 for the row layout, whose streaming part runs
 at memcpy speed. Memory: 72 C K
 bytes per node and field (64^3 with 19 bases x RGB: 1.08 GB); plain
 iteration holds 2 fields, BiCGSTAB 6. Only non-empty parts of each row
-collide; empty rows are copied. The collision of a long occupied run (at
-least ``_BLAS_MIN_RUN`` values, i.e. many right-hand sides) is one
-(18 x 18) @ (18 x n) product per channel and material done by BLAS gemm on a
-contiguous copy of the run: per core it ran 2.2x faster than the loop (which
-re-reads its accumulators from L1 for every f_j), and the whole sweep 1.2-1.3x
-(64^3 dense, 57 rhs; streaming is the rest). Short runs keep the loop, where
-a gemm call costs more than it saves. ``_reference_step`` is the plain numpy
+collide; empty rows are copied. A long occupied run (at least
+``_LONG_RUN_MIN`` values, i.e. many right-hand sides) collides by the parity
+split of ``_parity_blocks``: two (9 x 9) @ (9 x n) products per channel and
+material on rho (f_2p +- f_2p+1), written out three output rows per pass
+(``_pair_product``: their coefficients stay in registers; per core ~140
+GFLOP/s against ~37 for BLAS gemm through ``np.dot`` on such thin
+products), and the post-collision values go straight into their target
+slots while streaming (the row is never stored after collision): 1.8-1.9x
+the BLAS version of the sweep at 64^3 / 128^3 with 57 rhs, 2.5x with brown
+nodes (same process, alternating). Short runs keep the hand loop, where the
+long-run path's per-call costs eat its gain. ``_reference_step`` is the plain numpy
 version of the update on the paper's 19 directions that the kernel is
 tested against.
 
@@ -162,8 +166,8 @@ _CX = np.ascontiguousarray(DIRECTIONS[1:, 0])
 _CY = np.ascontiguousarray(DIRECTIONS[1:, 1])
 _CZ = np.ascontiguousarray(DIRECTIONS[1:, 2])
 SOLVERS = ("auto", "iterate", "bicgstab", "extrapolate")
-#: Occupied runs (nz * K values) at least this long collide by BLAS gemm, shorter ones by a loop.
-_BLAS_MIN_RUN = 256
+#: Occupied runs (nz * K values) at least this long take the fused parity-split path of ``_sweep``, shorter ones the hand loop.
+_LONG_RUN_MIN = 256
 NH = NQ // 2  # opposite pairs: direction 2p + 1 is the opposite of 2p (checked in _parity_blocks)
 
 
@@ -356,7 +360,7 @@ class LBParams:
     memory_limit: float = 4e9
     """Bytes ``auto`` lets BiCGSTAB hold (6 fields of 72 C K bytes per node)."""
     check_every: int = 4
-    """Plain iteration measures the residual every this many sweeps (measuring costs ~40% of a sweep)."""
+    """Plain iteration measures the residual every this many sweeps (a measuring sweep costs ~1.5x a plain one)."""
     dtype: str = "float32"
     """Storage of the field: ``float32`` (default) or ``float64``."""
     initial: str = "unscattered"
@@ -422,6 +426,92 @@ class LBResult:
 # --------------------------------------------------------------------------- numba kernels
 
 
+@njit(fastmath=True, cache=True)
+def _pair_product(M, S, E):  # pragma: no cover - compiled
+    """E = M @ S for M (9, 9) and S, E (9, n): one half of the parity-split collision.
+
+    Written out for three output rows per pass: their 27 coefficients stay in (AVX-512) registers
+    and each load of s_q feeds three FMAs. One core, n = 1216 (64^3, 57 rhs), operands in cache:
+    ~140 GFLOP/s against ~37 for BLAS gemm through np.dot (packing the operands of such thin
+    products costs it more than the arithmetic) and ~95 for one output row per pass.
+    """
+    n = S.shape[1]
+    s0 = S[0]
+    s1 = S[1]
+    s2 = S[2]
+    s3 = S[3]
+    s4 = S[4]
+    s5 = S[5]
+    s6 = S[6]
+    s7 = S[7]
+    s8 = S[8]
+    for p in range(0, NH, 3):
+        ea = E[p]
+        eb = E[p + 1]
+        ec = E[p + 2]
+        a0, a1, a2, a3, a4, a5, a6, a7, a8 = M[p, 0], M[p, 1], M[p, 2], M[p, 3], M[p, 4], M[p, 5], M[p, 6], M[p, 7], M[p, 8]
+        b0, b1, b2, b3, b4, b5, b6, b7, b8 = (
+            M[p + 1, 0], M[p + 1, 1], M[p + 1, 2], M[p + 1, 3], M[p + 1, 4], M[p + 1, 5], M[p + 1, 6], M[p + 1, 7], M[p + 1, 8]
+        )
+        c0, c1, c2, c3, c4, c5, c6, c7, c8 = (
+            M[p + 2, 0], M[p + 2, 1], M[p + 2, 2], M[p + 2, 3], M[p + 2, 4], M[p + 2, 5], M[p + 2, 6], M[p + 2, 7], M[p + 2, 8]
+        )
+        for l in range(n):
+            v0, v1, v2, v3, v4, v5, v6, v7, v8 = s0[l], s1[l], s2[l], s3[l], s4[l], s5[l], s6[l], s7[l], s8[l]
+            ea[l] = a0 * v0 + a1 * v1 + a2 * v2 + a3 * v3 + a4 * v4 + a5 * v5 + a6 * v6 + a7 * v7 + a8 * v8
+            eb[l] = b0 * v0 + b1 * v1 + b2 * v2 + b3 * v3 + b4 * v4 + b5 * v5 + b6 * v6 + b7 * v7 + b8 * v8
+            ec[l] = c0 * v0 + c1 * v1 + c2 * v2 + c3 * v3 + c4 * v4 + c5 * v5 + c6 * v6 + c7 * v7 + c8 * v8
+
+
+@njit(fastmath=True, cache=True)
+def _stream_copy(mode, o, s, fo, wo, q1, q2):  # pragma: no cover - compiled
+    """Streamed run of a slot that did not collide here: the target gets ``s`` (post-collision = f).
+
+    ``o, fo, wo, q1, q2`` are the target's run in out, f, wt, part1, part2 (see ``_sweep`` for the modes).
+    """
+    n = o.size
+    if mode == 1:
+        for l in range(n):
+            v = s[l]
+            dd = v - fo[l]
+            q1[l] += dd * dd
+            o[l] = v
+    elif mode == 2:
+        for l in range(n):
+            w = fo[l] - s[l]
+            o[l] = w
+            q1[l] += wo[l] * w
+            q2[l] += w * w
+    else:
+        for l in range(n):
+            o[l] = s[l]
+
+
+@njit(fastmath=True, cache=True)
+def _stream_collide(mode, o, s, e, od, sg, fo, wo, q1, q2):  # pragma: no cover - compiled
+    """Streamed run of a collided slot: the target gets ``s + e + sg * od``, the post-collision density.
+
+    geist2008 eq. (2) with the parity split of ``_parity_blocks``: f_2p + rho (AE s + AO d)_p (sg = +1)
+    and f_2p+1 + rho (AE s - AO d)_p (sg = -1), rho already folded into e and od.
+    """
+    n = o.size
+    if mode == 1:
+        for l in range(n):
+            v = s[l] + e[l] + sg * od[l]
+            dd = v - fo[l]
+            q1[l] += dd * dd
+            o[l] = v
+    elif mode == 2:
+        for l in range(n):
+            w = fo[l] - (s[l] + e[l] + sg * od[l])
+            o[l] = w
+            q1[l] += wo[l] * w
+            q2[l] += w * w
+    else:
+        for l in range(n):
+            o[l] = s[l] + e[l] + sg * od[l]
+
+
 @njit(parallel=True, fastmath=True, cache=True)
 def _sweep(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no cover - compiled
     """One fused collision + push-streaming sweep; writes every non-inflow slot of ``out``.
@@ -438,13 +528,24 @@ def _sweep(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no c
     nx, ny, nq, C, nz, B = f.shape
     nmat = A.shape[0]
     L = nz * B
+    # (x, y, direction, channel) -> the row's run of nz * B values, viewed once here: building these
+    # views per row and direction (reshape, then index) cost ~1.1x on short rows (64^3, 1 rhs)
+    f5 = f.reshape((nx, ny, nq, C, L))
+    out5 = out.reshape((nx, ny, nq, C, L))
+    wt5 = wt.reshape((nx, ny, nq, C, L))
     for x in prange(nx):
         H = np.empty((nq, C, L), dtype=f.dtype)
         buf = np.empty(nq * L, dtype=f.dtype)
         prod = np.empty(nq * L, dtype=f.dtype)
+        extra = np.empty(nq * L, dtype=f.dtype)
         acc = np.empty((3, L), dtype=f.dtype)
         rexp = np.empty((nmat, L), dtype=f.dtype)
         has = np.zeros(nmat, dtype=np.bool_)
+        ae = np.empty((NH, NH), dtype=f.dtype)  # thread-local copies of AE[m, c], AO[m, c]
+        ao = np.empty((NH, NH), dtype=f.dtype)
+        sgn = np.empty(2, dtype=f.dtype)  # +1 / -1 in the field's dtype (a float64 sign would promote)
+        sgn[0] = 1.0
+        sgn[1] = -1.0
         for y in range(ny):
             rr = rho[x, y]
             mm = mat[x, y]
@@ -458,7 +559,7 @@ def _sweep(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no c
                         z0 = z
                     z1 = z
                     has[mm[z]] = True
-            F = f[x, y].reshape((nq, C, L))
+            F = f5[x, y]
             if mode == 1:
                 for i in range(nq):
                     for c in range(C):
@@ -477,56 +578,120 @@ def _sweep(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no c
                             v = rr[z0 + zz] if mm[z0 + zz] == m else 0.0
                             for b in range(B):
                                 re[zz * B + b] = v
-                if n >= _BLAS_MIN_RUN:
-                    # long runs: the collision as matrix products by BLAS gemm (2x the loop below per
-                    # core: it keeps its accumulators in registers). Omega depends only on the angle
-                    # between directions, so it commutes with inversion c -> -c; over the opposite
-                    # pairs (2p, 2p + 1) it splits into an even part acting on s = f_2p + f_2p+1 and an
-                    # odd part acting on d = f_2p - f_2p+1: two (9 x 9) @ (9 x n) products, half the
-                    # multiply-adds of (18 x 18) @ (18 x n).
+                if n >= _LONG_RUN_MIN:
+                    # long runs: collision fused into the streaming. Omega depends only on the angle
+                    # between directions, so it commutes with inversion c -> -c; over the opposite pairs
+                    # (2p, 2p + 1) it splits into an even part acting on s = f_2p + f_2p+1 and an odd
+                    # part acting on d = f_2p - f_2p+1 (``_parity_blocks``): two (9 x 9) @ (9 x n)
+                    # products (``_pair_product``), half the multiply-adds of (18 x 18) @ (18 x n). The
+                    # density is folded into S = rho s and D = rho d, so geist2008 eq. (2) (f_0 removed,
+                    # sec. 3) is f_2p + E_p + O_p and f_2p+1 + E_p - O_p with E = AE S, O = AO D, added
+                    # on the way into the target slots: the post-collision row is never stored. Materials
+                    # have disjoint nodes (rho_m = 0 off their own), so their products add up.
                     Sb = buf[: NH * n].reshape((NH, n))
                     Db = buf[NH * n : 2 * NH * n].reshape((NH, n))
                     Eb = prod[: NH * n].reshape((NH, n))
                     Ob = prod[NH * n : 2 * NH * n].reshape((NH, n))
                     for c in range(C):
-                        for i in range(nq):
-                            h = H[i, c]
-                            fi = F[i, c]
-                            for l in range(l0):
-                                h[l] = fi[l]
-                            for l in range(l0 + n, L):
-                                h[l] = fi[l]
-                        for p in range(NH):
-                            fa = F[2 * p, c, l0 : l0 + n]
-                            fb = F[2 * p + 1, c, l0 : l0 + n]
-                            sp = Sb[p]
-                            dp = Db[p]
-                            for l in range(n):
-                                sp[l] = fa[l] + fb[l]
-                                dp[l] = fa[l] - fb[l]
                         first = True
                         for m in range(nmat):
                             if not has[m]:
                                 continue
-                            re = rexp[m, l0 : l0 + n]
-                            np.dot(AE[m, c], Sb, Eb)
-                            np.dot(AO[m, c], Db, Ob)
-                            # geist2008 eq. (2): f + rho * Omega f, f_0 removed (sec. 3)
                             for p in range(NH):
-                                ha = H[2 * p, c, l0 : l0 + n]
-                                hb = H[2 * p + 1, c, l0 : l0 + n]
-                                fa = F[2 * p, c, l0 : l0 + n] if first else ha
-                                fb = F[2 * p + 1, c, l0 : l0 + n] if first else hb
-                                ep = Eb[p]
-                                op = Ob[p]
+                                for q in range(NH):
+                                    ae[p, q] = AE[m, c, p, q]
+                                    ao[p, q] = AO[m, c, p, q]
+                            re = rexp[m, l0 : l0 + n]
+                            for p in range(NH):
+                                fa = F[2 * p, c, l0 : l0 + n]
+                                fb = F[2 * p + 1, c, l0 : l0 + n]
+                                sp = Sb[p]
+                                dp = Db[p]
                                 for l in range(n):
                                     r = re[l]
-                                    ha[l] = fa[l] + r * (ep[l] + op[l])
-                                    hb[l] = fb[l] + r * (ep[l] - op[l])
-                            first = False
+                                    sp[l] = r * (fa[l] + fb[l])
+                                    dp[l] = r * (fa[l] - fb[l])
+                            if first:
+                                _pair_product(ae, Sb, Eb)
+                                _pair_product(ao, Db, Ob)
+                                first = False
+                            else:
+                                # a further material (disjoint nodes): add its products (adding inside
+                                # _pair_product instead ran 2x slower)
+                                Tb = extra[: 2 * NH * n].reshape((2 * NH, n))
+                                _pair_product(ae, Sb, Tb[:NH])
+                                _pair_product(ao, Db, Tb[NH:])
+                                for p in range(NH):
+                                    ep = Eb[p]
+                                    op = Ob[p]
+                                    tp = Tb[p]
+                                    tq = Tb[NH + p]
+                                    for l in range(n):
+                                        ep[l] += tp[l]
+                                        op[l] += tq[l]
+                        # push-streaming f_i(r + c_i) = post_i(r), z-shift an offset in the row; the source
+                        # run [lo, hi) splits into the pass-through head [lo, l0), the collided run
+                        # [l0, l0 + n) and the pass-through tail [l0 + n, hi)
+                        for i in range(nq):
+                            tx = x + _CX[i]
+                            ty = y + _CY[i]
+                            if tx < 0 or tx >= nx or ty < 0 or ty >= ny:
+                                continue  # the light leaves the grid
+                            dz = _CZ[i]
+                            lo = (-dz if dz < 0 else 0) * B
+                            hi = (nz - dz if dz > 0 else nz) * B
+                            d = dz * B
+                            o = out5[tx, ty, i, c]
+                            s = F[i, c]
+                            p = i >> 1
+                            ep = Eb[p]
+                            op = Ob[p]
+                            sg = sgn[i & 1]
+                            if mode == 0:
+                                # a plain sweep builds only the views it uses (1.2x at 64^3, 57 rhs)
+                                a = lo
+                                b1 = min(hi, l0)
+                                if b1 > a:
+                                    o[a + d : b1 + d] = s[a:b1]
+                                a = max(lo, l0)
+                                b1 = min(hi, l0 + n)
+                                if b1 > a:
+                                    oo = o[a + d : b1 + d]
+                                    ss = s[a:b1]
+                                    ee = ep[a - l0 : b1 - l0]
+                                    od = op[a - l0 : b1 - l0]
+                                    for l in range(b1 - a):
+                                        oo[l] = ss[l] + ee[l] + sg * od[l]
+                                a = max(lo, l0 + n)
+                                b1 = hi
+                                if b1 > a:
+                                    o[a + d : b1 + d] = s[a:b1]
+                                continue
+                            fo = f5[tx, ty, i, c]
+                            wo = wt5[tx, ty, i, c]
+                            q1 = part1[x, c]
+                            q2 = part2[x, c]
+                            a = lo
+                            b1 = min(hi, l0)
+                            if b1 > a:
+                                _stream_copy(mode, o[a + d : b1 + d], s[a:b1], fo[a + d : b1 + d], wo[a + d : b1 + d],
+                                             q1[a + d : b1 + d], q2[a + d : b1 + d])
+                            a = max(lo, l0)
+                            b1 = min(hi, l0 + n)
+                            if b1 > a:
+                                _stream_collide(mode, o[a + d : b1 + d], s[a:b1], ep[a - l0 : b1 - l0],
+                                                op[a - l0 : b1 - l0], sg, fo[a + d : b1 + d], wo[a + d : b1 + d],
+                                                q1[a + d : b1 + d], q2[a + d : b1 + d])
+                            a = max(lo, l0 + n)
+                            b1 = hi
+                            if b1 > a:
+                                _stream_copy(mode, o[a + d : b1 + d], s[a:b1], fo[a + d : b1 + d], wo[a + d : b1 + d],
+                                             q1[a + d : b1 + d], q2[a + d : b1 + d])
+                    continue  # streamed above
                 else:
-                    # short runs (a gemm call costs more): three output directions per pass share
-                    # each load of f_j (18 = 6 x 3)
+                    # short runs (the long-run path's per-call costs eat its gain: about even at n = 128,
+                    # 1.2-1.7x slower at n = 64): three output directions per pass share each load of f_j
+                    # (18 = 6 x 3)
                     a0 = acc[0, :n]
                     a1 = acc[1, :n]
                     a2 = acc[2, :n]
@@ -577,9 +742,9 @@ def _sweep(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no c
                 hi = (nz - dz if dz > 0 else nz) * B
                 d = dz * B
                 n2 = hi - lo
-                O = out[tx, ty, i].reshape((C, L))
+                O = out5[tx, ty, i]
                 if mode == 1:
-                    Fo = f[tx, ty, i].reshape((C, L))
+                    Fo = f5[tx, ty, i]
                     for c in range(C):
                         o = O[c, lo + d : hi + d]
                         s = src[i, c, lo:hi]
@@ -591,8 +756,8 @@ def _sweep(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no c
                             rn[l] += dd * dd
                             o[l] = v
                 elif mode == 2:
-                    Fo = f[tx, ty, i].reshape((C, L))
-                    Wo = wt[tx, ty, i].reshape((C, L))
+                    Fo = f5[tx, ty, i]
+                    Wo = wt5[tx, ty, i]
                     for c in range(C):
                         o = O[c, lo + d : hi + d]
                         s = src[i, c, lo:hi]

@@ -38,10 +38,11 @@ from foliage_tools.lighting.lb import (
     LatticeStabilityError,
     LBParams,
     LBProblem,
-    _BLAS_MIN_RUN,
+    _LONG_RUN_MIN,
     _balance,
     _Operator,
     _reference_step,
+    _sweep,
     ambient_boundary,
     base_boundary,
     leaf_irradiance,
@@ -189,12 +190,12 @@ def _problem_random(rng, shape=(7, 6, 5)):
 @pytest.mark.parametrize("shape", [(7, 6, 5), (4, 3, 90)], ids=["short-runs-loop", "long-runs-gemm"])
 def test_fast_kernel_matches_reference_step(rng, dtype, tol, shape):
     """Both collision paths of the kernel: rows whose occupied run (nz x 3 rhs) is short use the
-    hand loop, long ones BLAS gemm (``_BLAS_MIN_RUN``); two materials in both."""
+    hand loop, long ones the fused parity-split path (``_LONG_RUN_MIN``); two materials in both."""
     pb = _problem_random(rng, shape)
     occ = pb.density > 0
     z = np.arange(shape[2])
     runs = np.where(occ.any(-1), np.where(occ, z, -1).max(-1) - np.where(occ, z, shape[2]).min(-1) + 1, 0) * 3
-    assert (runs.max() >= _BLAS_MIN_RUN) == (shape[2] == 90)  # the path this case is meant to exercise
+    assert (runs.max() >= _LONG_RUN_MIN) == (shape[2] == 90)  # the path this case is meant to exercise
     op = _Operator(pb, dtype)
     f19 = rng.uniform(0, 1, pb.shape + (19, 3, 3))
     row = op.to_row(f19)
@@ -218,6 +219,59 @@ def test_fast_kernel_matches_reference_step(rng, dtype, tol, shape):
     lhs = ref.sum(axis=(0, 1, 2, 3))
     rhs = f19.sum(axis=(0, 1, 2, 3)) - absorbed.sum(axis=(0, 1, 2)) - outflow + (slots @ op.bnd)[:, None]
     np.testing.assert_allclose(lhs, rhs, rtol=1e-12)
+
+
+@pytest.mark.parametrize("dtype, tol", [("float32", 1e-6), ("float64", 1e-13)])
+@pytest.mark.parametrize("mode", [0, 1, 2])
+def test_fused_long_run_path_matches_reference_in_every_mode(rng, dtype, tol, mode):
+    """The long-run path (collision products added while streaming, geist2008 eq. (2)) in all three
+    kernel modes, with rows of green nodes only, brown nodes only (the second material alone) and both,
+    an occupied run shorter than the row (pass-through head and tail) and an empty row."""
+    shape = (4, 3, 120)
+    rho = rng.uniform(0.05, 0.9, shape)
+    rho[rng.uniform(size=shape) < 0.3] = 0.0
+    rho[0, 0, :15] = 0.0  # occupied run z in [15, 105): 90 nodes x 3 rhs, head and tail pass through
+    rho[0, 0, 105:] = 0.0
+    rho[0, 0, [15, 104]] = 0.5
+    rho[1, 1] = 0.0  # empty row
+    brown_mask = rng.uniform(size=shape) < 0.2
+    brown_mask[0] = True  # brown-only rows
+    brown_mask[1] = False  # green-only rows
+    med = Medium(sigma_a=(0.1, 0.3, 0.02), sigma_s=(0.85, 0.6, 0.97), g=(0.4, -0.7, 0.0))
+    bounds = (sun_boundary((0.2, -0.5, 0.8)), base_boundary(9), ambient_boundary())
+    pb = LBProblem(rho, med, bounds, brown_mask=brown_mask)
+    occ = rho > 0
+    z = np.arange(shape[2])
+    runs = np.where(occ.any(-1), np.where(occ, z, -1).max(-1) - np.where(occ, z, shape[2]).min(-1) + 1, 0) * 3
+    assert runs[1, 1] == 0 and runs[0, 0] == 270 and (np.delete(runs.ravel(), 4) >= _LONG_RUN_MIN).all()
+    green, brownish = occ & ~brown_mask, occ & brown_mask
+    kinds = {(bool(green[x, y].any()), bool(brownish[x, y].any())) for x in range(4) for y in range(3) if occ[x, y].any()}
+    assert kinds == {(True, False), (False, True), (True, True)}  # green only, brown only, both
+    op = _Operator(pb, dtype)
+    assert op.A.shape[0] == 2
+    f19 = rng.uniform(0, 1, pb.shape + (19, 3, 3))
+    f = op.to_row(f19)
+    op.set_inflow(f, zero=mode == 2)  # a solver state, or a Krylov vector (no boundary part)
+    f19 = op.from_row(f).astype(np.float64)  # the exact input the kernel sees
+    ref, _, _ = _reference_step(f19, pb)
+    tf = op.to_row(ref).astype(np.float64)
+    op.set_inflow(tf, zero=mode == 2)
+    out = op.zeros()
+    op.set_inflow(out, zero=mode == 2)  # the kernel leaves inflow slots alone
+    wt = op.to_row(rng.uniform(0, 1, pb.shape + (19, 3, 3)))
+    p1, p2 = np.zeros((shape[0], 3, op.L)), np.zeros((shape[0], 3, op.L))
+    _sweep(f, out, op.rho, op.mat, op.A, op.AE, op.AO, mode, wt, p1, p2)
+    expect = f - tf if mode == 2 else tf
+    scale = np.abs(tf).max()
+    np.testing.assert_allclose(out, expect, rtol=0, atol=tol * scale)
+    if mode == 1:  # the residual sums of a plain sweep
+        np.testing.assert_allclose(op.reduce(p1), op.reduce(np.sum((tf - f) ** 2, axis=(1, 2))), rtol=tol * 100)
+        np.testing.assert_allclose(op.reduce(p2), op.reduce(np.sum(f.astype(np.float64) ** 2, axis=(1, 2))), rtol=tol * 10)
+    elif mode == 2:  # the dot products of the BiCGSTAB operator
+        np.testing.assert_allclose(op.reduce(p1), op.reduce(np.sum(wt * expect, axis=(1, 2))), rtol=tol * 100)
+        np.testing.assert_allclose(op.reduce(p2), op.reduce(np.sum(expect**2, axis=(1, 2))), rtol=tol * 100)
+    else:
+        assert not p1.any() and not p2.any()
 
 
 def test_operator_mode_applies_identity_minus_sweep(rng):
