@@ -26,15 +26,17 @@ from foliage_tools.pipeline.spp import DEPTH_PATHS, depth_path
 from foliage_tools.scene.read import read_scene
 
 #: LB node x right-hand-side updates per second, many (>= 19) / few right-hand sides
-#: (bench_lb_issue.py: 64^3 fused sweep, 57 rhs ~100 MLUPS after the parity split; 3 rhs ~45).
-LB_MLUPS_MANY, LB_MLUPS_FEW = 90e6, 45e6
+#: (bench_lb_issue.py, 2026-11-24: fused sweep 57 rhs ~205 MLUPS, full 18-base bakes 202-237;
+#: 3 rhs 57 at 64^3, 88 at 128^3).
+LB_MLUPS_MANY, LB_MLUPS_FEW = 200e6, 60e6
 #: LB sweeps to tolerance 1e-5 per node of the longest grid edge (bench_lb_issue.py bake rows:
 #: 68 sweeps at 66 nodes, 132 at 130, physical absorption; lower absorption needs more).
 LB_SWEEPS_PER_EDGE = 1.05
 #: Seconds per leaf of the area density kernel (bench_density.py: 100k leaves 0.45 s).
 DENSITY_S_PER_LEAF = 4.5e-6
-#: smax: reference pairs per second (O(N^2), bench_smax.py: 40k leaves 8.2 s) and fast path per leaf (0.16 s).
-SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 1.95e8, 4.0e-6
+#: smax: reference pairs per second (O(N^2), bench_smax.py 2026-11-24: 40k leaves 2.77 s, 100k 16.9 s) and
+#: fast path per leaf (40k 0.178 s, 100k 0.352 s).
+SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 5.8e8, 4.0e-6
 #: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 34 in 44-56 s).
 SPP_RAYS_PER_S = 5.5e5
 #: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py).
