@@ -69,8 +69,8 @@ _WORKERS = os.cpu_count() or 1
 #: The depth paths of ``--depth``.
 DEPTH_PATHS = ("auto", "grid", "rays")
 #: ``--depth auto`` counts rays while the scene has at most this many leaves (summed over instances) and
-#: integrates the grid above: rays cost ~1 ms per leaf and instance at the defaults (bench_sppg.py: 50k leaves
-#: 44-56 s; 500k would be ~10 min against 7 s for the grid).
+#: integrates the grid above: rays cost 0.5-1 ms per leaf and instance at the defaults (bench_sppg.py: 50k leaves
+#: 25-56 s on two 2-core hosts; 500k would be 4-10 min against 4-7 s for the grid).
 AUTO_RAYS_MAX_LEAVES = 50_000
 
 
