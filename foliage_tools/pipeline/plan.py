@@ -37,8 +37,9 @@ DENSITY_S_PER_LEAF = 4.5e-6
 #: smax: reference pairs per second (O(N^2), bench_smax.py 2026-11-24: 40k leaves 2.77 s, 100k 16.9 s) and
 #: fast path per leaf (40k 0.178 s, 100k 0.352 s).
 SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 5.8e8, 4.0e-6
-#: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 34 in 44-56 s).
-SPP_RAYS_PER_S = 5.5e5
+#: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 34 in 25 s on
+#: 2026-11-24; 44-56 s on the earlier host).
+SPP_RAYS_PER_S = 1.0e6
 #: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py).
 REFERENCE_PATHS_PER_S = 3.8e6
 
