@@ -32,16 +32,17 @@ LB_MLUPS_MANY, LB_MLUPS_FEW = 200e6, 60e6
 #: LB sweeps to tolerance 1e-5 per node of the longest grid edge (bench_lb_issue.py bake rows:
 #: 68 sweeps at 66 nodes, 132 at 130, physical absorption; lower absorption needs more).
 LB_SWEEPS_PER_EDGE = 1.05
-#: Seconds per leaf of the area density kernel (bench_density.py: 100k leaves 0.45 s).
-DENSITY_S_PER_LEAF = 4.5e-6
+#: Seconds per leaf of the area density kernel (bench_density.py 2026-11-24: 100k leaves 0.16 s, 1M 1.5 s).
+DENSITY_S_PER_LEAF = 1.6e-6
 #: smax: reference pairs per second (O(N^2), bench_smax.py 2026-11-24: 40k leaves 2.77 s, 100k 16.9 s) and
 #: fast path per leaf (40k 0.178 s, 100k 0.352 s).
 SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 5.8e8, 4.0e-6
 #: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 34 in 25 s on
 #: 2026-11-24; 44-56 s on the earlier host).
 SPP_RAYS_PER_S = 1.0e6
-#: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py).
-REFERENCE_PATHS_PER_S = 3.8e6
+#: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py 2026-11-24: 6.2e6 on a 2k-leaf
+#: crown; `foliage bench` on the example, setup included: 8M paths in 2.7 s).
+REFERENCE_PATHS_PER_S = 3.0e6
 
 
 def available_memory() -> float:
