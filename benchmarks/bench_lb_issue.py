@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import sys
 import tempfile
 import time
@@ -76,19 +75,10 @@ from foliage_tools.lighting.lb import (
 )
 from foliage_tools.pipeline.plan import available_memory
 
-SUN = (0.3, 0.2, 1.0)
-TABLE1_G = (-0.120, 0.091, -0.333)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_lb import SUN, TABLE1_G, dense_sphere, median_seconds  # noqa: E402  (the same test problems and timer)
+
 BYTES_PER_UPDATE = 19 * 4 * 2  # 19 float32 densities read + written per node x rhs update
-
-
-def median_seconds(fn, repeats: int) -> float:
-    fn()  # warm-up (compiles on first use)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 @njit(parallel=True, cache=True)
@@ -175,12 +165,6 @@ def kernel_table(repeats: int, bw: float) -> None:
             note = " (slab: memory)" if shape != (n, n, n) else ""
             print(f"   {'numpy reference (f64), ' + str(n) + '^3':<34}{gs:<16}{nrhs:>5}{dt * 1e3:>10.1f}{nodes * nrhs / dt / 1e6:>20.2f}{'-':>8}{note}", flush=True)
             del f19, pb
-
-
-def dense_sphere(n: int, density: float, radius: float = 0.4) -> np.ndarray:
-    x = np.arange(n) - (n - 1) / 2
-    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
-    return np.where(X**2 + Y**2 + Z**2 < (radius * n) ** 2, density, 0.0)
 
 
 def solver_table(max_sweeps: int) -> None:
