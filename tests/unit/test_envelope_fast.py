@@ -14,6 +14,7 @@ import numpy as np
 import scipy.fft
 
 from foliage_tools.lighting import envelope as env
+from tests.unit.test_envelope import uniform_ball
 
 
 def test_pruned_transforms_match_scipy():
@@ -229,13 +230,7 @@ def test_fast_path_depth_error_at_40k_leaves():
     field (kernel, reflections, own-mass removal, hand-overs) fails them.
     The depth is what the lighting uses and does not depend on τ's split.
     """
-    rng = np.random.default_rng(2)
-    n_leaves = 40000
-    d = rng.normal(size=(n_leaves, 3))
-    c = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(size=(n_leaves, 1)) ** (1.0 / 3.0)
-    n = rng.normal(size=(n_leaves, 3))
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    a = np.full(n_leaves, 2.0 * 2.0 / (n_leaves / (4.0 / 3.0 * math.pi)))  # A = 2 τ / ρ, eq. (5.5)
+    c, n, a = uniform_ball(40000, tau=2.0, seed=2)  # A = 2 τ / ρ, eq. (5.5)
     frame = env.sample_frame((0, 0, 1))
     x, nl = np.ascontiguousarray(c @ frame.T), np.ascontiguousarray(n @ frame.T)
     probes = np.sort(np.random.default_rng(0).choice(len(c), 500, replace=False)).astype(np.int64)
@@ -258,13 +253,7 @@ def test_fine_grid_falls_back_to_one_grid_under_the_cell_cap():
     The fallback is the single-grid computation itself (same sums, bit for
     bit); without the cap the fine grid is used and changes the depths.
     """
-    rng = np.random.default_rng(3)
-    n_leaves = 3000
-    d = rng.normal(size=(n_leaves, 3))
-    c = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(size=(n_leaves, 1)) ** (1.0 / 3.0)
-    n = rng.normal(size=(n_leaves, 3))
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    a = np.full(n_leaves, 4.0 / (n_leaves / (4.0 / 3.0 * math.pi)))
+    c, n, a = uniform_ball(3000, tau=2.0, seed=3)
     capped = env.solve(c, n, a, params=env.EnvelopeParams(path="fast", fast_max_cells=18))
     single = env.solve(c, n, a, params=env.EnvelopeParams(path="fast", fast_max_cells=18, fast_fine_grid=False))
     fine = env.solve(c, n, a, params=env.EnvelopeParams(path="fast"))
