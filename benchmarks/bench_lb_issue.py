@@ -22,8 +22,8 @@ One run prints four tables:
    densities (the issue's model; the kernel actually stores 18), 152 bytes,
    so the bandwidth-bound rate is B / 152 bytes; "% roof" is the kernel's
    fraction of it. Where a full N^3 field does not fit in memory the kernel
-   is timed on an (N/4) x N x N slab: same rows (the kernel's SIMD run is a
-   z-row of nz*K values, and threads split x), so the per-node rate is the
+   is timed on an (N/4) x N x N slab: same rows (the kernel's SIMD runs are
+   rows or blocks of rows within an x-slab, and threads split x), so the per-node rate is the
    same; the table says so. The numpy reference at 128^3 is skipped (a
    64^3 57-rhs step already allocates ~10 GB of float64 temporaries); at 64^3
    with 57 rhs it is timed on a 64 x 64 x 16 slab for the same reason.

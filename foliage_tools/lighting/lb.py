@@ -64,36 +64,50 @@ irradiance of a randomly oriented two-sided leaf in a sun of irradiance 1.
 
 Layout and kernel
 -----------------
-The state is ``(nx, ny, 18, C, nz, K)`` float32 (C channels, K boundary
+The state is ``(nx, NB, 18, C, G * nz, K)`` float32 (C channels, K boundary
 conditions; the right-hand sides are the C*K pairs; direction q is lattice
-direction q + 1). One fused numba kernel (``parallel=True``, ``prange`` over
-x) does collision and push-streaming for all right-hand sides of an (x, y)
-row at once: the SIMD dimension is the contiguous ``nz * K`` run of one
-direction and channel, over which the channel's collision coefficient is a
-broadcast scalar (three output directions per pass share each load), and
-streaming is a shifted copy of that run into the target row. So the bases
-are innermost, as asked, but with z between them and the channel. Why:
-with the right-hand sides alone innermost, ``(nx, ny, nz, 18, R)``, the
-vectors are R long (3 for the sun in RGB: no SIMD at all) and streaming
-moves 18 short runs per node; on this machine (48^3 dense sphere, same
-process, best of 7) the best such kernel ran at 38 / 50 node x rhs MLUPS for
-R = 3 / 57 against 61 / 101 for the row layout, whose streaming part runs
-at memcpy speed. Memory: 72 C K
-bytes per node and field (64^3 with 19 bases x RGB: 1.08 GB); plain
-iteration holds 2 fields, BiCGSTAB 6. Only non-empty parts of each row
-collide; empty rows are copied. A long occupied run (at least
-``_LONG_RUN_MIN`` values, i.e. many right-hand sides) collides by the parity
-split of ``_parity_blocks``: two (9 x 9) @ (9 x n) products per channel and
-material on rho (f_2p +- f_2p+1), written out three output rows per pass
-(``_pair_product``: their coefficients stay in registers; per core ~140
-GFLOP/s against ~37 for BLAS gemm through ``np.dot`` on such thin
-products), and the post-collision values go straight into their target
-slots while streaming (the row is never stored after collision): 1.8-1.9x
-the BLAS version of the sweep at 64^3 / 128^3 with 57 rhs, 2.5x with brown
-nodes (same process, alternating). Short runs keep the hand loop, where the
-long-run path's per-call costs eat its gain. ``_reference_step`` is the plain numpy
-version of the update on the paper's 19 directions that the kernel is
-tested against.
+direction q + 1): the rows of G consecutive y form one block, whose values of
+one direction and channel are one contiguous run of G nz K values (node
+(x, y, z) at ``[x, y // G, :, :, (y % G) nz + z]``; the last block is padded
+with zero rows). Fused numba kernels (``parallel=True``, ``prange`` over x) do
+collision and push-streaming for all right-hand sides at once: the SIMD
+dimension is the contiguous run of one direction and channel, over which the
+channel's collision coefficients are broadcast scalars, and streaming is a
+shifted copy of that run into the target. So the bases are innermost, as
+asked, but with z (and y % G) between them and the channel. Why: with the
+right-hand sides alone innermost, ``(nx, ny, nz, 18, R)``, the vectors are R
+long (3 for the sun in RGB: no SIMD at all) and streaming moves 18 short runs
+per node; on this machine (48^3 dense sphere, same process, best of 7) the
+best such kernel ran at 38 / 50 node x rhs MLUPS for R = 3 / 57 against 61 /
+101 for rows of nz K values. Memory: 72 C K bytes per node and field (64^3
+with 19 bases x RGB: 1.08 GB); plain iteration holds 2 fields, BiCGSTAB 6.
+
+Occupied nodes collide by the parity split of ``_parity_blocks``: two (9 x 9)
+@ (9 x n) products per channel and material on rho (f_2p +- f_2p+1), written
+out three output rows per pass (``_pair_product``: their coefficients stay in
+registers; per core ~140 GFLOP/s against ~37 for BLAS gemm through ``np.dot``
+on such thin products), and the post-collision values go straight into their
+target slots while streaming (never stored after collision): 1.8-1.9x the
+BLAS version of the sweep at 64^3 / 128^3 with 57 rhs, 2.5x with brown nodes
+(same process, alternating). Empty parts are copied.
+
+* Long rows (nz K >= ``_ROW_KERNEL_MIN`` values: many right-hand sides) are
+  blocks of one row (G = 1) and ``_sweep_rows`` sweeps them row by row; an
+  occupied run shorter than ``_LONG_RUN_MIN`` there keeps a hand loop, where
+  the products' per-call costs eat their gain.
+* Short rows (few right-hand sides, e.g. the sun: nz values per direction
+  and channel) are blocks of G = ``_BLOCK_VALUES`` // (nz K) rows, and
+  ``_sweep_blocks`` collides and streams whole blocks: a y- and z-shift is one
+  offset of the flat run, the row that crosses into a neighbouring block goes
+  there, and the few slots a z-shift wraps into (inflow slots on the z faces
+  of the next row) are saved and put back. Against sweeping such rows one by
+  one (the previous kernel; same process, alternating, this 2-core EPYC host)
+  at 1-3 rhs: 1.85-2.2x on a uniformly occupied 64^3 / 128^3 grid, 1.4-1.7x
+  on the dense sphere, 1.25-1.4x on the example tree (per-row loops run over
+  only 64-128 values, where the cost of entering each loop dominates).
+
+``_reference_step`` is the plain numpy version of the update on the paper's 19
+directions that both kernels are tested against.
 
 Steady state
 ------------
@@ -166,7 +180,14 @@ _CX = np.ascontiguousarray(DIRECTIONS[1:, 0])
 _CY = np.ascontiguousarray(DIRECTIONS[1:, 1])
 _CZ = np.ascontiguousarray(DIRECTIONS[1:, 2])
 SOLVERS = ("auto", "iterate", "bicgstab", "extrapolate")
-#: Occupied runs (nz * K values) at least this long take the fused parity-split path of ``_sweep``, shorter ones the hand loop.
+#: Rows of nz K values at least this long (many right-hand sides) are swept one row at a time (``_sweep_rows``);
+#: shorter ones in blocks of ``_BLOCK_VALUES`` // (nz K) rows (``_sweep_blocks``), so that its loops run over
+#: about that many values.
+_ROW_KERNEL_MIN = 1024
+#: (3 rhs on a uniformly occupied 64^3 grid, while the kernel was written: 7.3 ms per sweep with 4096, 8.7 with
+#: 2048, 9.1 with 1024; one run each.)
+_BLOCK_VALUES = 4096
+#: ``_sweep_rows``: occupied runs at least this long collide by the parity-split products, shorter ones by the hand loop.
 _LONG_RUN_MIN = 256
 NH = NQ // 2  # opposite pairs: direction 2p + 1 is the opposite of 2p (checked in _parity_blocks)
 
@@ -467,7 +488,7 @@ def _pair_product(M, S, E):  # pragma: no cover - compiled
 def _stream_copy(mode, o, s, fo, wo, q1, q2):  # pragma: no cover - compiled
     """Streamed run of a slot that did not collide here: the target gets ``s`` (post-collision = f).
 
-    ``o, fo, wo, q1, q2`` are the target's run in out, f, wt, part1, part2 (see ``_sweep`` for the modes).
+    ``o, fo, wo, q1, q2`` are the target's run in out, f, wt, part1, part2 (see ``_sweep_rows`` for the modes).
     """
     n = o.size
     if mode == 1:
@@ -513,9 +534,10 @@ def _stream_collide(mode, o, s, e, od, sg, fo, wo, q1, q2):  # pragma: no cover 
 
 
 @njit(parallel=True, fastmath=True, cache=True)
-def _sweep(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no cover - compiled
-    """One fused collision + push-streaming sweep; writes every non-inflow slot of ``out``.
+def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no cover - compiled
+    """One fused collision + push-streaming sweep over rows of nz * B values (long: many right-hand sides).
 
+    Writes every non-inflow slot of ``out``. The layout of ``_Operator`` with one row per block (G = 1):
     f, out, wt : (nx, ny, 18, C, nz, B); rho : (nx, ny, nz); mat : (nx, ny, nz) uint8;
     A : (nmat, C, 18, 18) unit-density moving block of Omega (A[m, c, i, j]);
     AE, AO : (nmat, C, 9, 9) its even and odd parts over opposite pairs (``_parity_blocks``);
@@ -779,16 +801,307 @@ def _sweep(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no c
                             o[l] = s[l]
 
 
+@njit(fastmath=True, cache=True, inline="always")
+def _stream_piece(mode, acc, o, s, e, od, sg, fo, wo, q1, q2):  # pragma: no cover - compiled
+    """o = v (modes 0, 1) or fo - v (mode 2) with v = s + e + sg * od (``e`` empty: v = s); with ``acc``
+    also the mode's sums: q1 += (o - fo)^2 (mode 1), q1 += wo * o and q2 += o^2 (mode 2)."""
+    n = o.size
+    if e.size == 0:
+        if mode == 0 or (mode == 1 and not acc):
+            for l in range(n):
+                o[l] = s[l]
+        elif mode == 1:
+            for l in range(n):
+                v = s[l]
+                dd = v - fo[l]
+                q1[l] += dd * dd
+                o[l] = v
+        elif not acc:
+            for l in range(n):
+                o[l] = fo[l] - s[l]
+        else:
+            for l in range(n):
+                w = fo[l] - s[l]
+                o[l] = w
+                q1[l] += wo[l] * w
+                q2[l] += w * w
+    else:
+        if mode == 0 or (mode == 1 and not acc):
+            for l in range(n):
+                o[l] = s[l] + e[l] + sg * od[l]
+        elif mode == 1:
+            for l in range(n):
+                v = s[l] + e[l] + sg * od[l]
+                dd = v - fo[l]
+                q1[l] += dd * dd
+                o[l] = v
+        elif not acc:
+            for l in range(n):
+                o[l] = fo[l] - (s[l] + e[l] + sg * od[l])
+        else:
+            for l in range(n):
+                w = fo[l] - (s[l] + e[l] + sg * od[l])
+                o[l] = w
+                q1[l] += wo[l] * w
+                q2[l] += w * w
+
+
+@njit(fastmath=True, cache=True, inline="always")
+def _stream_segment(mode, o, s, fo, wo, q1, q2, a, b, d, limit, wrap_z, B, Lr, e, od, sg, l0, l1, save):  # pragma: no cover - compiled
+    """Push-stream the source run [a, b) of one direction and channel into the target block ``o`` at offset d.
+
+    ``o, fo, wo, q1, q2`` are the target block's runs in out, f, wt, part1, part2 (only [0, limit)
+    holds real rows; a plain sweep passes ``s`` for fo and wo); ``s`` is the source block's run. On
+    [l0, l1) the source collided: the target gets the post-collision ``s + e + sg * od`` there, ``s``
+    elsewhere (mode 2: ``fo`` minus that). A z-shift moves a row's last (first) node into the next
+    (previous) row's first (last) slot of the flat block: those targets are inflow slots on the z
+    faces, so they are saved here and put back, and then the mode 1/2 sums are taken over the
+    target run in a second pass while it is in cache (subtracting a wrong term again would leave
+    float round-off in a residual that can be ~1e-14). Without such slots (z-shift 0, or one row
+    per block) the sums are taken in the same pass.
+    """
+    a = max(a, -d)
+    b = min(b, limit - d)
+    if b <= a:
+        return
+    ns = 0
+    if wrap_z >= 0:
+        for g in range(a // Lr, (b + Lr - 1) // Lr):
+            t = g * Lr + wrap_z * B + d
+            if t - d >= a and t - d + B <= b and t >= 0 and t + B <= limit:
+                for k in range(B):
+                    save[ns + k] = o[t + k]
+                ns += B
+    acc = ns == 0
+    none = e[:0]
+    c1 = min(b, l0)
+    if c1 > a:
+        x0 = a + d
+        x1 = c1 + d
+        _stream_piece(mode, acc, o[x0:x1], s[a:c1], none, none, sg, fo[x0:x1], wo[x0:x1], q1[x0:x1], q2[x0:x1])
+    c0 = max(a, l0)
+    c1 = min(b, l1)
+    if c1 > c0:
+        x0 = c0 + d
+        x1 = c1 + d
+        _stream_piece(mode, acc, o[x0:x1], s[c0:c1], e[c0 - l0 : c1 - l0], od[c0 - l0 : c1 - l0], sg, fo[x0:x1],
+                      wo[x0:x1], q1[x0:x1], q2[x0:x1])
+    c0 = max(a, l1)
+    if b > c0:
+        x0 = c0 + d
+        x1 = b + d
+        _stream_piece(mode, acc, o[x0:x1], s[c0:b], none, none, sg, fo[x0:x1], wo[x0:x1], q1[x0:x1], q2[x0:x1])
+    if ns == 0:
+        return
+    ns = 0
+    for g in range(a // Lr, (b + Lr - 1) // Lr):
+        t = g * Lr + wrap_z * B + d
+        if t - d >= a and t - d + B <= b and t >= 0 and t + B <= limit:
+            for k in range(B):
+                o[t + k] = save[ns + k]
+            ns += B
+    if mode == 1:
+        oo = o[a + d : b + d]
+        ff = fo[a + d : b + d]
+        r1 = q1[a + d : b + d]
+        for l in range(b - a):
+            dd = oo[l] - ff[l]
+            r1[l] += dd * dd
+    elif mode == 2:
+        oo = o[a + d : b + d]
+        ww = wo[a + d : b + d]
+        r1 = q1[a + d : b + d]
+        r2 = q2[a + d : b + d]
+        for l in range(b - a):
+            w = oo[l]
+            r1[l] += ww[l] * w
+            r2[l] += w * w
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: no cover - compiled
+    """One fused collision + push-streaming sweep over blocks of G rows (short rows: few right-hand sides).
+
+    Writes every non-inflow slot of ``out``. f, out, wt : (nx, NB, 18, C, G*nz, K), the block layout of ``_Operator``; rho : (nx, ny, nz);
+    mat : (nx, ny, nz) uint8; AE, AO : (nmat, C, 9, 9) the even and odd parts over opposite pairs of
+    the unit-density moving block of Omega (``_parity_blocks``); part1, part2 : (nx, C, G*nz*K)
+    float64 partial sums, per x-slab and position in the block's run.
+
+    mode 0: out = T f.
+    mode 1: out = T f, part1 += (out - f)^2 and part2 += f^2 (the residual of a plain sweep).
+    mode 2: out = f - T f (the BiCGSTAB operator I - T), part1 += wt * out, part2 += out^2.
+    """
+    nx, nb, nq, C, gnz, B = f.shape
+    ny = rho.shape[1]
+    nz = rho.shape[2]
+    G = gnz // nz
+    Lr = nz * B  # one row's run
+    R = G * Lr  # one block's run
+    nmat = AE.shape[0]
+    f5 = f.reshape((nx, nb, nq, C, R))
+    out5 = out.reshape((nx, nb, nq, C, R))
+    wt5 = wt.reshape((nx, nb, nq, C, R))
+    for x in prange(nx):
+        buf = np.empty(2 * NH * R, dtype=f.dtype)
+        prod = np.empty(2 * NH * R, dtype=f.dtype)
+        extra = np.empty(2 * NH * R, dtype=f.dtype)
+        rexp = np.empty((nmat, R), dtype=f.dtype)
+        has = np.zeros(nmat, dtype=np.bool_)
+        save = np.empty(G * B, dtype=f.dtype)
+        ae = np.empty((NH, NH), dtype=f.dtype)  # thread-local copies of AE[m, c], AO[m, c]
+        ao = np.empty((NH, NH), dtype=f.dtype)
+        sgn = np.empty(2, dtype=f.dtype)  # +1 / -1 in the field's dtype (a float64 sign would promote)
+        sgn[0] = 1.0
+        sgn[1] = -1.0
+        for blk in range(nb):
+            y0 = blk * G
+            nrows = min(G, ny - y0)
+            F = f5[x, blk]
+            if mode == 1:
+                for i in range(nq):
+                    for c in range(C):
+                        fi = F[i, c]
+                        rd = part2[x, c]
+                        for l in range(R):
+                            rd[l] += fi[l] * fi[l]
+            # occupied nodes j0 .. j1 - 1 of the block (flat (row, z) index): only they collide
+            j0 = -1
+            j1 = -1
+            for m in range(nmat):
+                has[m] = False
+            for g in range(nrows):
+                rr = rho[x, y0 + g]
+                mm = mat[x, y0 + g]
+                for z in range(nz):
+                    if rr[z] > 0:
+                        if j0 < 0:
+                            j0 = g * nz + z
+                        j1 = g * nz + z + 1
+                        has[mm[z]] = True
+            l0 = max(j0, 0) * B
+            l1 = max(j1, 0) * B
+            n = l1 - l0
+            Sb = buf[: NH * n].reshape((NH, n))
+            Db = buf[NH * n : 2 * NH * n].reshape((NH, n))
+            Eb = prod[: NH * n].reshape((NH, n))
+            Ob = prod[NH * n : 2 * NH * n].reshape((NH, n))
+            if n > 0:
+                for m in range(nmat):
+                    re = rexp[m]
+                    for j in range(j0, j1):
+                        g = j // nz
+                        z = j - g * nz
+                        v = rho[x, y0 + g, z] if mat[x, y0 + g, z] == m else 0.0
+                        for b in range(B):
+                            re[(j - j0) * B + b] = v
+            for c in range(C):
+                if n > 0:
+                    # Omega depends only on the angle between directions, so it commutes with inversion
+                    # c -> -c; over the opposite pairs (2p, 2p + 1) it splits into an even part acting on
+                    # s = f_2p + f_2p+1 and an odd part acting on d = f_2p - f_2p+1 (``_parity_blocks``):
+                    # two (9 x 9) @ (9 x n) products (``_pair_product``), half the multiply-adds of
+                    # (18 x 18) @ (18 x n). The density is folded into S = rho s and D = rho d, so
+                    # geist2008 eq. (2) (f_0 removed, sec. 3) is f_2p + E_p + O_p and f_2p+1 + E_p - O_p
+                    # with E = AE S, O = AO D, added on the way into the target slots: the post-collision
+                    # block is never stored. Materials have disjoint nodes (rho_m = 0 off their own), so
+                    # their products add up.
+                    first = True
+                    for m in range(nmat):
+                        if not has[m]:
+                            continue
+                        for p in range(NH):
+                            for q in range(NH):
+                                ae[p, q] = AE[m, c, p, q]
+                                ao[p, q] = AO[m, c, p, q]
+                        re = rexp[m, :n]
+                        for p in range(NH):
+                            fa = F[2 * p, c, l0:l1]
+                            fb = F[2 * p + 1, c, l0:l1]
+                            sp = Sb[p]
+                            dp = Db[p]
+                            for l in range(n):
+                                r = re[l]
+                                sp[l] = r * (fa[l] + fb[l])
+                                dp[l] = r * (fa[l] - fb[l])
+                        if first:
+                            _pair_product(ae, Sb, Eb)
+                            _pair_product(ao, Db, Ob)
+                            first = False
+                        else:
+                            # a further material (disjoint nodes): add its products (adding inside
+                            # _pair_product instead ran 2x slower)
+                            Tb = extra[: 2 * NH * n].reshape((2 * NH, n))
+                            _pair_product(ae, Sb, Tb[:NH])
+                            _pair_product(ao, Db, Tb[NH:])
+                            for p in range(NH):
+                                ep = Eb[p]
+                                op = Ob[p]
+                                tp = Tb[p]
+                                tq = Tb[NH + p]
+                                for l in range(n):
+                                    ep[l] += tp[l]
+                                    op[l] += tq[l]
+                # push-streaming f_i(r + c_i) = post_i(r): within a block a y- and z-shift is one
+                # offset of the flat run; the row that crosses into the next (previous) block goes there
+                q1 = part1[x, c]
+                q2 = part2[x, c]
+                for i in range(nq):
+                    tx = x + _CX[i]
+                    if tx < 0 or tx >= nx:
+                        continue  # the light leaves the grid
+                    cy = _CY[i]
+                    cz = _CZ[i]
+                    wrap_z = -1 if cz == 0 else (nz - 1 if cz > 0 else 0)
+                    s = F[i, c]
+                    ep = Eb[i >> 1]
+                    op = Ob[i >> 1]
+                    sg = sgn[i & 1]
+                    # rows whose target row is in this block
+                    g0 = max(0, -cy)
+                    g1 = min(nrows, nrows - cy)
+                    if g1 > g0:
+                        # a plain sweep passes s for the views it does not read (building them cost ~1.1x)
+                        fo = f5[tx, blk, i, c] if mode != 0 else s
+                        wo = wt5[tx, blk, i, c] if mode == 2 else s
+                        _stream_segment(mode, out5[tx, blk, i, c], s, fo, wo, q1, q2, g0 * Lr, g1 * Lr,
+                                        cy * Lr + cz * B, nrows * Lr, wrap_z, B, Lr, ep, op, sg, l0, l1, save)
+                    # the row whose target row is in the neighbouring block
+                    tb = -1
+                    if cy > 0 and nrows == G and blk + 1 < nb:
+                        tb = blk + 1
+                        a = (G - 1) * Lr
+                        d = cz * B - (G - 1) * Lr
+                        lim = min(G, ny - y0 - G) * Lr
+                    elif cy < 0 and blk > 0:
+                        tb = blk - 1
+                        a = 0
+                        d = (G - 1) * Lr + cz * B
+                        lim = R
+                    if tb >= 0:
+                        fo = f5[tx, tb, i, c] if mode != 0 else s
+                        wo = wt5[tx, tb, i, c] if mode == 2 else s
+                        _stream_segment(mode, out5[tx, tb, i, c], s, fo, wo, q1, q2, a, a + Lr, d, lim, wrap_z, B, Lr,
+                                        ep, op, sg, l0, l1, save)
+
+
 @njit(cache=True)
 def _balance(f, rho, mat, A, sig_a, inflow_mask):  # pragma: no cover - compiled
-    """Per right-hand side (C, B): inflow, outflow and absorbed density of one sweep from f, in float64."""
-    nx, ny, nq, C, nz, B = f.shape
+    """Per right-hand side (C, B): inflow, outflow and absorbed density of one sweep from f, in float64.
+
+    f in the block layout of ``_Operator``: node (x, y, z) at f[x, y // G, :, :, (y % G) * nz + z].
+    """
+    nx, nb, nq, C, gnz, B = f.shape
+    ny = rho.shape[1]
+    nz = rho.shape[2]
+    G = gnz // nz
     inflow = np.zeros((C, B))
     outflow = np.zeros((C, B))
     absorbed = np.zeros((C, B))
     for x in range(nx):
         for y in range(ny):
+            yb = y // G
             for z in range(nz):
+                zb = (y % G) * nz + z
                 p = rho[x, y, z]
                 m = mat[x, y, z]
                 boundary = x == 0 or y == 0 or z == 0 or x == nx - 1 or y == ny - 1 or z == nz - 1
@@ -796,23 +1109,23 @@ def _balance(f, rho, mat, A, sig_a, inflow_mask):  # pragma: no cover - compiled
                     for b in range(B):
                         tot = 0.0
                         for j in range(nq):
-                            tot += f[x, y, j, c, z, b]
+                            tot += f[x, yb, j, c, zb, b]
                         absorbed[c, b] += p * sig_a[m, c] * tot  # moved into f_0 (geist2008 eq. 5), then removed
                         if not boundary:
                             continue
                         for i in range(nq):
                             if inflow_mask[x, y, z, i]:
-                                inflow[c, b] += f[x, y, i, c, z, b]
+                                inflow[c, b] += f[x, yb, i, c, zb, b]
                             tx = x + _CX[i]
                             ty = y + _CY[i]
                             tz = z + _CZ[i]
                             if 0 <= tx < nx and 0 <= ty < ny and 0 <= tz < nz:
                                 continue
-                            h = float(f[x, y, i, c, z, b])
+                            h = float(f[x, yb, i, c, zb, b])
                             if p > 0:
                                 s = 0.0
                                 for j in range(nq):
-                                    s += A[m, c, i, j] * f[x, y, j, c, z, b]
+                                    s += A[m, c, i, j] * f[x, yb, j, c, zb, b]
                                 h += p * s
                             outflow[c, b] += h
     return inflow, outflow, absorbed
@@ -924,7 +1237,13 @@ def _safe_div(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class _Operator:
-    """The problem's arrays in the kernel's layout ``(nx, ny, 18, C, nz, K)``."""
+    """The problem's arrays in the kernel's block layout ``(nx, NB, 18, C, G * nz, K)``.
+
+    Rows of G consecutive y (the last block padded with zero rows) share one contiguous run of
+    G nz K values per direction and channel: node (x, y, z) is at ``[x, y // G, :, :, (y % G) nz + z]``.
+    G = ``_BLOCK_VALUES`` // (nz K), at least 1 and at most ny: with many right-hand sides a block is one
+    row, with few the kernel's loops still run over about ``_BLOCK_VALUES`` values.
+    """
 
     def __init__(self, problem: LBProblem, dtype: str) -> None:
         self.dtype = np.dtype(dtype)
@@ -932,8 +1251,11 @@ class _Operator:
         self.nx, self.ny, self.nz = nx, ny, nz
         self.C = problem.channels
         self.K = len(problem.boundaries)
-        self.L = nz * self.K
-        self.state_shape = (nx, ny, NQ, self.C, nz, self.K)
+        row = nz * self.K
+        self.G = 1 if row >= _ROW_KERNEL_MIN else max(1, min(ny, _BLOCK_VALUES // row))
+        self.NB = -(-ny // self.G)
+        self.L = self.G * nz * self.K  # a block's run
+        self.state_shape = (nx, self.NB, NQ, self.C, self.G * nz, self.K)
         self.rho = np.ascontiguousarray(problem.density, dtype=self.dtype)
         self.mat = np.zeros(problem.shape, np.uint8)
         media = [problem.medium]
@@ -966,11 +1288,27 @@ class _Operator:
     def zeros(self) -> np.ndarray:
         return np.zeros(self.state_shape, self.dtype)
 
+    def _nodes(self, f: np.ndarray) -> np.ndarray:
+        """View (nx, NB, G, 18, C, nz, K) of a state: axes 1 and 2 are y // G and y % G."""
+        return f.reshape(self.nx, self.NB, NQ, self.C, self.G, self.nz, self.K).transpose(0, 1, 4, 2, 3, 5, 6)
+
+    def _rows(self, a: np.ndarray) -> np.ndarray:
+        """(nx, NB * G, ...) per-node values -> (nx, ny, ...) (the padding rows dropped)."""
+        return a.reshape((self.nx, self.NB * self.G) + a.shape[3:])[:, : self.ny]
+
+    def _padded(self, a: np.ndarray) -> np.ndarray:
+        """(nx, ny, ...) -> (nx, NB, G, ...), the padding rows zero (False)."""
+        full = np.zeros((self.nx, self.NB * self.G) + a.shape[2:], a.dtype)
+        full[:, : self.ny] = a
+        return full.reshape((self.nx, self.NB, self.G) + a.shape[2:])
+
     def set_inflow(self, f: np.ndarray, *, zero: bool = False) -> None:
         """Write the boundary densities (or zeros) into the inflow slots of ``f``."""
+        nodes = self._nodes(f)
+        mask = self._padded(self.inflow_mask)  # (nx, NB, G, nz, 18)
         for q in range(NQ):
-            view = np.moveaxis(f[:, :, q], 2, 3)  # (nx, ny, nz, C, K)
-            view[self.inflow_mask[..., q]] = 0.0 if zero else self.bnd[q]
+            view = np.moveaxis(nodes[:, :, :, q], 3, 4)  # (nx, NB, G, nz, C, K), a view of f
+            view[mask[..., q]] = 0.0 if zero else self.bnd[q]
 
     def initial(self) -> np.ndarray:
         f = self.zeros()
@@ -980,30 +1318,45 @@ class _Operator:
     def unscattered(self, problem: LBProblem) -> np.ndarray:
         """The never-scattered field in the kernel layout: f_q = b_q t_q (``unscattered_energy``), inflow slots = b."""
         f = self.zeros()
+        nodes = self._nodes(f)
         for q, t in _transmittances(problem, self.bnd.any(axis=1), self.dtype):
-            f[:, :, q] = t.transpose(0, 1, 3, 2)[..., None] * self.bnd[q].astype(self.dtype)
+            # t (nx, ny, nz, C) -> (nx, NB, G, C, nz, K)
+            nodes[:, :, :, q] = self._padded(t).transpose(0, 1, 2, 4, 3)[..., None] * self.bnd[q].astype(self.dtype)
         return f
 
     def to_row(self, f19: np.ndarray) -> np.ndarray:
-        """(nx, ny, nz, 19, K, C) -> the kernel layout (nx, ny, 18, C, nz, K) (f_0 dropped)."""
-        return np.ascontiguousarray(np.asarray(f19)[..., 1:, :, :].transpose(0, 1, 3, 5, 2, 4), dtype=self.dtype)
+        """(nx, ny, nz, 19, K, C) -> the kernel layout (f_0 dropped)."""
+        f = self.zeros()
+        self._nodes(f)[...] = self._padded(np.asarray(f19)[..., 1:, :, :].transpose(0, 1, 3, 5, 2, 4))
+        return f
 
     def from_row(self, f: np.ndarray) -> np.ndarray:
         """The kernel layout -> (nx, ny, nz, 19, K, C) with f_0 = 0."""
         full = np.zeros((self.nx, self.ny, self.nz, 19, self.K, self.C), f.dtype)
-        full[..., 1:, :, :] = f.transpose(0, 1, 4, 2, 5, 3)
+        full[..., 1:, :, :] = self._rows(self._nodes(f)).transpose(0, 1, 4, 2, 5, 3)
         return full
 
+    def energy(self, f: np.ndarray) -> np.ndarray:
+        """Energy density u = sum_i f_i per node and right-hand side, (nx, ny, nz, K, C)."""
+        u = f.sum(axis=2).reshape(self.nx, self.NB, self.C, self.G, self.nz, self.K)
+        return np.ascontiguousarray(self._rows(u.transpose(0, 1, 3, 4, 5, 2)))
+
     def vec(self, a: np.ndarray) -> np.ndarray:
-        return a.reshape(self.nx, self.ny * NQ, self.C, self.L)
+        return a.reshape(self.nx, self.NB * NQ, self.C, self.L)
 
     def reduce(self, part: np.ndarray) -> np.ndarray:
         """(nx, C, L) partial sums -> (C, K)."""
-        return part.sum(axis=0).reshape(self.C, self.nz, self.K).sum(axis=1)
+        return part.sum(axis=0).reshape(self.C, self.G * self.nz, self.K).sum(axis=1)
 
     def expand(self, s: np.ndarray) -> np.ndarray:
-        """(C, K) per-rhs scalars -> (C, L) for the flattened (z, k) run."""
-        return np.ascontiguousarray(np.tile(s, (1, self.nz)), dtype=self.dtype)
+        """(C, K) per-rhs scalars -> (C, L) for the flattened (y % G, z, k) run."""
+        return np.ascontiguousarray(np.tile(s, (1, self.G * self.nz)), dtype=self.dtype)
+
+    def _kernel(self, f, out, mode, wt, p1, p2) -> None:
+        if self.nz * self.K >= _ROW_KERNEL_MIN:  # then G = 1: the row layout
+            _sweep_rows(f, out, self.rho, self.mat, self.A, self.AE, self.AO, mode, wt, p1, p2)
+        else:
+            _sweep_blocks(f, out, self.rho, self.mat, self.AE, self.AO, mode, wt, p1, p2)
 
     def sweep(self, f: np.ndarray, out: np.ndarray, *, residual: bool) -> np.ndarray | None:
         """out <- one lattice update of f (inflow slots of out untouched); per-rhs relative residual if asked."""
@@ -1011,7 +1364,7 @@ class _Operator:
         if residual:
             p1[:] = 0.0
             p2[:] = 0.0
-        _sweep(f, out, self.rho, self.mat, self.A, self.AE, self.AO, 1 if residual else 0, f, p1, p2)
+        self._kernel(f, out, 1 if residual else 0, f, p1, p2)
         if not residual:
             return None
         num, den = self.reduce(p1), self.reduce(p2)
@@ -1022,7 +1375,7 @@ class _Operator:
         p1, p2 = self._parts[0], self._parts[1]
         p1[:] = 0.0
         p2[:] = 0.0
-        _sweep(v, out, self.rho, self.mat, self.A, self.AE, self.AO, 2, wt, p1, p2)
+        self._kernel(v, out, 2, wt, p1, p2)
         return self.reduce(p1), self.reduce(p2)
 
     def dot(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -1226,7 +1579,7 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
         raise LBNumericalError(f"the lattice solve ended with a non-finite residual (solver {'+'.join(used)}); "
                                "use the solver 'iterate', and please report the input.")
     inflow, outflow, absorbed = _balance(f, op.rho, op.mat, op.A, op.sig_a, op.inflow_mask)
-    energy = np.ascontiguousarray(f.sum(axis=2).transpose(0, 1, 3, 4, 2))  # (nx, ny, nz, K, C)
+    energy = op.energy(f)  # (nx, ny, nz, K, C)
     full = op.from_row(f) if params.keep_f else None
     return LBResult(
         energy_density=energy,

@@ -12,6 +12,7 @@ Closed forms used below, each with its tolerance and why:
 * Empty grid: every f_i equals its boundary value (pass-through, exact).
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -38,11 +39,12 @@ from foliage_tools.lighting.lb import (
     LatticeStabilityError,
     LBParams,
     LBProblem,
+    _BLOCK_VALUES,
     _LONG_RUN_MIN,
+    _ROW_KERNEL_MIN,
     _balance,
     _Operator,
     _reference_step,
-    _sweep,
     ambient_boundary,
     base_boundary,
     leaf_irradiance,
@@ -187,16 +189,29 @@ def _problem_random(rng, shape=(7, 6, 5)):
 
 
 @pytest.mark.parametrize("dtype, tol", [("float32", 1e-6), ("float64", 1e-13)])
-@pytest.mark.parametrize("shape", [(7, 6, 5), (4, 3, 90)], ids=["short-runs-loop", "long-runs-gemm"])
-def test_fast_kernel_matches_reference_step(rng, dtype, tol, shape):
-    """Both collision paths of the kernel: rows whose occupied run (nz x 3 rhs) is short use the
-    hand loop, long ones the fused parity-split path (``_LONG_RUN_MIN``); two materials in both."""
+@pytest.mark.parametrize(
+    "shape, blocks",
+    [((7, 6, 5), (6, 1)), ((3, 9, 300), (4, 3)), ((3, 4, 700), (1, 4))],
+    ids=["one-block", "blocks-of-4-rows-last-partial", "rows"],
+)
+def test_fast_kernel_matches_reference_step(rng, dtype, tol, shape, blocks):
+    """Every kernel path (``_Operator``): short rows (9 rhs) swept in blocks of rows by
+    ``_sweep_blocks``, all in one block or in several with a partial last one (streaming across
+    block edges); long rows by ``_sweep_rows``, whose occupied runs collide by the parity-split
+    products when long and by the hand loop when short. Two materials, sparse occupancy."""
     pb = _problem_random(rng, shape)
-    occ = pb.density > 0
-    z = np.arange(shape[2])
-    runs = np.where(occ.any(-1), np.where(occ, z, -1).max(-1) - np.where(occ, z, shape[2]).min(-1) + 1, 0) * 3
-    assert (runs.max() >= _LONG_RUN_MIN) == (shape[2] == 90)  # the path this case is meant to exercise
+    if blocks[0] == 1:
+        rho = pb.density.copy()
+        rho[0, 0] = 0.0
+        rho[0, 0, 10:14] = 0.5  # a short occupied run in a long row: the hand loop
+        pb = dataclasses.replace(pb, density=rho)
     op = _Operator(pb, dtype)
+    assert (op.G, op.NB) == blocks and (op.nz * op.K >= _ROW_KERNEL_MIN) == (blocks[0] == 1), _BLOCK_VALUES
+    if blocks[0] == 1:
+        occ = pb.density > 0
+        z = np.arange(shape[2])
+        runs = np.where(occ.any(-1), np.where(occ, z, -1).max(-1) - np.where(occ, z, shape[2]).min(-1) + 1, 0) * 3
+        assert runs[0, 0] < _LONG_RUN_MIN <= runs.max()  # both collision paths of the row kernel
     f19 = rng.uniform(0, 1, pb.shape + (19, 3, 3))
     row = op.to_row(f19)
     op.set_inflow(row)  # a solver state: inflow slots hold the boundary densities
@@ -223,17 +238,25 @@ def test_fast_kernel_matches_reference_step(rng, dtype, tol, shape):
 
 @pytest.mark.parametrize("dtype, tol", [("float32", 1e-6), ("float64", 1e-13)])
 @pytest.mark.parametrize("mode", [0, 1, 2])
-def test_fused_long_run_path_matches_reference_in_every_mode(rng, dtype, tol, mode):
-    """The long-run path (collision products added while streaming, geist2008 eq. (2)) in all three
-    kernel modes, with rows of green nodes only, brown nodes only (the second material alone) and both,
-    an occupied run shorter than the row (pass-through head and tail) and an empty row."""
-    shape = (4, 3, 120)
+@pytest.mark.parametrize("shape, blocks", [((4, 3, 700), (1, 3)), ((4, 7, 300), (4, 2))], ids=["rows", "4-row-blocks"])
+def test_fused_path_matches_reference_in_every_mode(rng, dtype, tol, mode, shape, blocks):
+    """Both kernels (collision products added while streaming, geist2008 eq. (2)) in all three modes,
+    with rows of green nodes only, brown nodes only (the second material alone) and both, an occupied
+    run shorter than the row or block (pass-through head and tail) and an empty row: ``_sweep_rows``
+    on long rows and ``_sweep_blocks`` on blocks of four short rows, the last partial (the z-shifts
+    that wrap into a neighbouring row's inflow slot are undone, also in the sums)."""
+    nz = shape[2]
+    head, tail = nz // 8, nz - nz // 8
     rho = rng.uniform(0.05, 0.9, shape)
     rho[rng.uniform(size=shape) < 0.3] = 0.0
-    rho[0, 0, :15] = 0.0  # occupied run z in [15, 105): 90 nodes x 3 rhs, head and tail pass through
-    rho[0, 0, 105:] = 0.0
-    rho[0, 0, [15, 104]] = 0.5
+    rho[0, 0, :head] = 0.0  # occupied run z in [head, tail), head and tail pass through
+    rho[0, 0, tail:] = 0.0
+    rho[0, 0, [head, tail - 1]] = 0.5
     rho[1, 1] = 0.0  # empty row
+    if blocks[0] > 1:
+        rho[2, :4] = 0.0  # an empty block
+        rho[3, :4, :head] = 0.0  # a block whose occupied run starts and ends inside rows
+        rho[3, :4, tail:] = 0.0
     brown_mask = rng.uniform(size=shape) < 0.2
     brown_mask[0] = True  # brown-only rows
     brown_mask[1] = False  # green-only rows
@@ -243,12 +266,12 @@ def test_fused_long_run_path_matches_reference_in_every_mode(rng, dtype, tol, mo
     occ = rho > 0
     z = np.arange(shape[2])
     runs = np.where(occ.any(-1), np.where(occ, z, -1).max(-1) - np.where(occ, z, shape[2]).min(-1) + 1, 0) * 3
-    assert runs[1, 1] == 0 and runs[0, 0] == 270 and (np.delete(runs.ravel(), 4) >= _LONG_RUN_MIN).all()
+    assert runs[1, 1] == 0 and runs[0, 0] == (tail - head) * 3
     green, brownish = occ & ~brown_mask, occ & brown_mask
     kinds = {(bool(green[x, y].any()), bool(brownish[x, y].any())) for x in range(4) for y in range(3) if occ[x, y].any()}
     assert kinds == {(True, False), (False, True), (True, True)}  # green only, brown only, both
     op = _Operator(pb, dtype)
-    assert op.A.shape[0] == 2
+    assert op.A.shape[0] == 2 and (op.G, op.NB) == blocks, _BLOCK_VALUES
     f19 = rng.uniform(0, 1, pb.shape + (19, 3, 3))
     f = op.to_row(f19)
     op.set_inflow(f, zero=mode == 2)  # a solver state, or a Krylov vector (no boundary part)
@@ -260,7 +283,7 @@ def test_fused_long_run_path_matches_reference_in_every_mode(rng, dtype, tol, mo
     op.set_inflow(out, zero=mode == 2)  # the kernel leaves inflow slots alone
     wt = op.to_row(rng.uniform(0, 1, pb.shape + (19, 3, 3)))
     p1, p2 = np.zeros((shape[0], 3, op.L)), np.zeros((shape[0], 3, op.L))
-    _sweep(f, out, op.rho, op.mat, op.A, op.AE, op.AO, mode, wt, p1, p2)
+    op._kernel(f, out, mode, wt, p1, p2)
     expect = f - tf if mode == 2 else tf
     scale = np.abs(tf).max()
     np.testing.assert_allclose(out, expect, rtol=0, atol=tol * scale)
