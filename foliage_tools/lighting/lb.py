@@ -801,7 +801,7 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
                             o[l] = s[l]
 
 
-@njit(fastmath=True, cache=True, inline="always")
+@njit(fastmath=True, cache=True)
 def _stream_piece(mode, acc, o, s, e, od, sg, fo, wo, q1, q2):  # pragma: no cover - compiled
     """o = v (modes 0, 1) or fo - v (mode 2) with v = s + e + sg * od (``e`` empty: v = s); with ``acc``
     also the mode's sums: q1 += (o - fo)^2 (mode 1), q1 += wo * o and q2 += o^2 (mode 2)."""
@@ -846,7 +846,7 @@ def _stream_piece(mode, acc, o, s, e, od, sg, fo, wo, q1, q2):  # pragma: no cov
                 q2[l] += w * w
 
 
-@njit(fastmath=True, cache=True, inline="always")
+@njit(fastmath=True, cache=True)
 def _stream_segment(mode, o, s, fo, wo, q1, q2, a, b, d, limit, wrap_z, B, Lr, e, od, sg, l0, l1, save):  # pragma: no cover - compiled
     """Push-stream the source run [a, b) of one direction and channel into the target block ``o`` at offset d.
 
