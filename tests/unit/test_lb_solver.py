@@ -297,6 +297,31 @@ def test_fused_path_matches_reference_in_every_mode(rng, dtype, tol, mode, shape
         assert not p1.any() and not p2.any()
 
 
+@pytest.mark.parametrize("shape", [(1, 1, 1), (2, 1, 7), (3, 5, 1), (1, 9, 2), (4, 13, 3), (2, 11, 900)])
+def test_kernel_on_thin_and_degenerate_grids(rng, shape):
+    """Grids one node thick along any axis, a block size that does not divide ny (padding rows),
+    and a single row of blocks: one plain sweep with the residual equals the numpy reference, and
+    the padding rows stay zero. One sun boundary, RGB (3 rhs): blocks of many short rows."""
+    rho = rng.uniform(0.05, 0.9, shape)
+    rho[rng.uniform(size=shape) < 0.3] = 0.0
+    pb = LBProblem(rho, leaf_medium(), (sun_boundary((0.3, -0.4, 0.85)),))
+    op = _Operator(pb, "float64")
+    assert (op.NB * op.G > op.ny) == (shape == (2, 11, 900)), (op.G, op.NB)  # blocks of 4 rows, one padding row
+    f19 = rng.uniform(0, 1, shape + (19, 1, 3))
+    row = op.to_row(f19)
+    op.set_inflow(row)
+    f19 = op.from_row(row)
+    ref, _, _ = _reference_step(f19, pb)
+    out = op.zeros()
+    op.set_inflow(out)
+    res = op.sweep(row, out, residual=True)
+    np.testing.assert_allclose(op.from_row(out), ref, rtol=0, atol=1e-13 * np.abs(ref).max())
+    expect = np.sqrt(((ref - f19) ** 2).sum(axis=(0, 1, 2, 3)) / (f19**2).sum(axis=(0, 1, 2, 3)))
+    np.testing.assert_allclose(res.T, expect, rtol=1e-11)
+    padding = op._nodes(out).reshape((op.nx, op.NB * op.G) + out.shape[2:4] + (op.nz, op.K))[:, op.ny :]
+    assert not padding.any()
+
+
 def test_operator_mode_applies_identity_minus_sweep(rng):
     pb = _problem_random(rng)
     op = _Operator(pb, "float64")
