@@ -485,6 +485,56 @@ def _pair_product(M, S, E):  # pragma: no cover - compiled
 
 
 @njit(fastmath=True, cache=True)
+def _collide_pairs(F, c, l0, n, rexp, r0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra):  # pragma: no cover - compiled
+    """E = AE S and O = AO D for channel c of the run [l0, l0 + n) of F (18, C, run), summed over materials.
+
+    Omega depends only on the angle between directions, so it commutes with inversion c -> -c; over
+    the opposite pairs (2p, 2p + 1) it splits into an even part acting on s = f_2p + f_2p+1 and an
+    odd part acting on d = f_2p - f_2p+1 (``_parity_blocks``): two (9 x 9) @ (9 x n) products
+    (``_pair_product``), half the multiply-adds of (18 x 18) @ (18 x n). The density is folded into
+    S = rho s and D = rho d (``rexp[m, r0 : r0 + n]``: rho on material m's nodes, 0 elsewhere), so
+    geist2008 eq. (2) (f_0 removed, sec. 3) is f_2p + E_p + O_p and f_2p+1 + E_p - O_p, added by the
+    caller on the way into the target slots. Materials have disjoint nodes, so their products add up.
+    ``ae``, ``ao``: thread-local (9, 9) scratch; ``Sb, Db, Eb, Ob`` (9, n), ``extra`` >= 18 n values.
+    """
+    first = True
+    for m in range(AE.shape[0]):
+        if not has[m]:
+            continue
+        for p in range(NH):
+            for q in range(NH):
+                ae[p, q] = AE[m, c, p, q]
+                ao[p, q] = AO[m, c, p, q]
+        re = rexp[m, r0 : r0 + n]
+        for p in range(NH):
+            fa = F[2 * p, c, l0 : l0 + n]
+            fb = F[2 * p + 1, c, l0 : l0 + n]
+            sp = Sb[p]
+            dp = Db[p]
+            for l in range(n):
+                r = re[l]
+                sp[l] = r * (fa[l] + fb[l])
+                dp[l] = r * (fa[l] - fb[l])
+        if first:
+            _pair_product(ae, Sb, Eb)
+            _pair_product(ao, Db, Ob)
+            first = False
+        else:
+            # a further material: add its products (adding inside _pair_product instead ran 2x slower)
+            Tb = extra[: 2 * NH * n].reshape((2 * NH, n))
+            _pair_product(ae, Sb, Tb[:NH])
+            _pair_product(ao, Db, Tb[NH:])
+            for p in range(NH):
+                ep = Eb[p]
+                op = Ob[p]
+                tp = Tb[p]
+                tq = Tb[NH + p]
+                for l in range(n):
+                    ep[l] += tp[l]
+                    op[l] += tq[l]
+
+
+@njit(fastmath=True, cache=True)
 def _stream_copy(mode, o, s, fo, wo, q1, q2):  # pragma: no cover - compiled
     """Streamed run of a slot that did not collide here: the target gets ``s`` (post-collision = f).
 
@@ -601,56 +651,14 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
                             for b in range(B):
                                 re[zz * B + b] = v
                 if n >= _LONG_RUN_MIN:
-                    # long runs: collision fused into the streaming. Omega depends only on the angle
-                    # between directions, so it commutes with inversion c -> -c; over the opposite pairs
-                    # (2p, 2p + 1) it splits into an even part acting on s = f_2p + f_2p+1 and an odd
-                    # part acting on d = f_2p - f_2p+1 (``_parity_blocks``): two (9 x 9) @ (9 x n)
-                    # products (``_pair_product``), half the multiply-adds of (18 x 18) @ (18 x n). The
-                    # density is folded into S = rho s and D = rho d, so geist2008 eq. (2) (f_0 removed,
-                    # sec. 3) is f_2p + E_p + O_p and f_2p+1 + E_p - O_p with E = AE S, O = AO D, added
-                    # on the way into the target slots: the post-collision row is never stored. Materials
-                    # have disjoint nodes (rho_m = 0 off their own), so their products add up.
+                    # long runs: the parity-split products (``_collide_pairs``), added to the streamed values
+                    # on the way into the target slots: the post-collision row is never stored
                     Sb = buf[: NH * n].reshape((NH, n))
                     Db = buf[NH * n : 2 * NH * n].reshape((NH, n))
                     Eb = prod[: NH * n].reshape((NH, n))
                     Ob = prod[NH * n : 2 * NH * n].reshape((NH, n))
                     for c in range(C):
-                        first = True
-                        for m in range(nmat):
-                            if not has[m]:
-                                continue
-                            for p in range(NH):
-                                for q in range(NH):
-                                    ae[p, q] = AE[m, c, p, q]
-                                    ao[p, q] = AO[m, c, p, q]
-                            re = rexp[m, l0 : l0 + n]
-                            for p in range(NH):
-                                fa = F[2 * p, c, l0 : l0 + n]
-                                fb = F[2 * p + 1, c, l0 : l0 + n]
-                                sp = Sb[p]
-                                dp = Db[p]
-                                for l in range(n):
-                                    r = re[l]
-                                    sp[l] = r * (fa[l] + fb[l])
-                                    dp[l] = r * (fa[l] - fb[l])
-                            if first:
-                                _pair_product(ae, Sb, Eb)
-                                _pair_product(ao, Db, Ob)
-                                first = False
-                            else:
-                                # a further material (disjoint nodes): add its products (adding inside
-                                # _pair_product instead ran 2x slower)
-                                Tb = extra[: 2 * NH * n].reshape((2 * NH, n))
-                                _pair_product(ae, Sb, Tb[:NH])
-                                _pair_product(ao, Db, Tb[NH:])
-                                for p in range(NH):
-                                    ep = Eb[p]
-                                    op = Ob[p]
-                                    tp = Tb[p]
-                                    tq = Tb[NH + p]
-                                    for l in range(n):
-                                        ep[l] += tp[l]
-                                        op[l] += tq[l]
+                        _collide_pairs(F, c, l0, n, rexp, l0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra)
                         # push-streaming f_i(r + c_i) = post_i(r), z-shift an offset in the row; the source
                         # run [lo, hi) splits into the pass-through head [lo, l0), the collided run
                         # [l0, l0 + n) and the pass-through tail [l0 + n, hi)
@@ -996,51 +1004,7 @@ def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: 
                             re[(j - j0) * B + b] = v
             for c in range(C):
                 if n > 0:
-                    # Omega depends only on the angle between directions, so it commutes with inversion
-                    # c -> -c; over the opposite pairs (2p, 2p + 1) it splits into an even part acting on
-                    # s = f_2p + f_2p+1 and an odd part acting on d = f_2p - f_2p+1 (``_parity_blocks``):
-                    # two (9 x 9) @ (9 x n) products (``_pair_product``), half the multiply-adds of
-                    # (18 x 18) @ (18 x n). The density is folded into S = rho s and D = rho d, so
-                    # geist2008 eq. (2) (f_0 removed, sec. 3) is f_2p + E_p + O_p and f_2p+1 + E_p - O_p
-                    # with E = AE S, O = AO D, added on the way into the target slots: the post-collision
-                    # block is never stored. Materials have disjoint nodes (rho_m = 0 off their own), so
-                    # their products add up.
-                    first = True
-                    for m in range(nmat):
-                        if not has[m]:
-                            continue
-                        for p in range(NH):
-                            for q in range(NH):
-                                ae[p, q] = AE[m, c, p, q]
-                                ao[p, q] = AO[m, c, p, q]
-                        re = rexp[m, :n]
-                        for p in range(NH):
-                            fa = F[2 * p, c, l0:l1]
-                            fb = F[2 * p + 1, c, l0:l1]
-                            sp = Sb[p]
-                            dp = Db[p]
-                            for l in range(n):
-                                r = re[l]
-                                sp[l] = r * (fa[l] + fb[l])
-                                dp[l] = r * (fa[l] - fb[l])
-                        if first:
-                            _pair_product(ae, Sb, Eb)
-                            _pair_product(ao, Db, Ob)
-                            first = False
-                        else:
-                            # a further material (disjoint nodes): add its products (adding inside
-                            # _pair_product instead ran 2x slower)
-                            Tb = extra[: 2 * NH * n].reshape((2 * NH, n))
-                            _pair_product(ae, Sb, Tb[:NH])
-                            _pair_product(ao, Db, Tb[NH:])
-                            for p in range(NH):
-                                ep = Eb[p]
-                                op = Ob[p]
-                                tp = Tb[p]
-                                tq = Tb[NH + p]
-                                for l in range(n):
-                                    ep[l] += tp[l]
-                                    op[l] += tq[l]
+                    _collide_pairs(F, c, l0, n, rexp, 0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra)
                 # push-streaming f_i(r + c_i) = post_i(r): within a block a y- and z-shift is one
                 # offset of the flat run; the row that crosses into the next (previous) block goes there
                 q1 = part1[x, c]
