@@ -485,6 +485,17 @@ def _pair_product(M, S, E):  # pragma: no cover - compiled
 
 
 @njit(fastmath=True, cache=True)
+def _add_squares(F, q):  # pragma: no cover - compiled
+    """q[c] += sum over directions i of F[i, c]^2 (F (18, C, run), q (C, run) float64): mode 1's ||f||^2."""
+    for i in range(F.shape[0]):
+        for c in range(F.shape[1]):
+            fi = F[i, c]
+            qc = q[c]
+            for l in range(fi.size):
+                qc[l] += fi[l] * fi[l]
+
+
+@njit(fastmath=True, cache=True)
 def _collide_pairs(F, c, l0, n, rexp, r0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra):  # pragma: no cover - compiled
     """E = AE S and O = AO D for channel c of the run [l0, l0 + n) of F (18, C, run), summed over materials.
 
@@ -532,55 +543,6 @@ def _collide_pairs(F, c, l0, n, rexp, r0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, e
                 for l in range(n):
                     ep[l] += tp[l]
                     op[l] += tq[l]
-
-
-@njit(fastmath=True, cache=True)
-def _stream_copy(mode, o, s, fo, wo, q1, q2):  # pragma: no cover - compiled
-    """Streamed run of a slot that did not collide here: the target gets ``s`` (post-collision = f).
-
-    ``o, fo, wo, q1, q2`` are the target's run in out, f, wt, part1, part2 (see ``_sweep_rows`` for the modes).
-    """
-    n = o.size
-    if mode == 1:
-        for l in range(n):
-            v = s[l]
-            dd = v - fo[l]
-            q1[l] += dd * dd
-            o[l] = v
-    elif mode == 2:
-        for l in range(n):
-            w = fo[l] - s[l]
-            o[l] = w
-            q1[l] += wo[l] * w
-            q2[l] += w * w
-    else:
-        for l in range(n):
-            o[l] = s[l]
-
-
-@njit(fastmath=True, cache=True)
-def _stream_collide(mode, o, s, e, od, sg, fo, wo, q1, q2):  # pragma: no cover - compiled
-    """Streamed run of a collided slot: the target gets ``s + e + sg * od``, the post-collision density.
-
-    geist2008 eq. (2) with the parity split of ``_parity_blocks``: f_2p + rho (AE s + AO d)_p (sg = +1)
-    and f_2p+1 + rho (AE s - AO d)_p (sg = -1), rho already folded into e and od.
-    """
-    n = o.size
-    if mode == 1:
-        for l in range(n):
-            v = s[l] + e[l] + sg * od[l]
-            dd = v - fo[l]
-            q1[l] += dd * dd
-            o[l] = v
-    elif mode == 2:
-        for l in range(n):
-            w = fo[l] - (s[l] + e[l] + sg * od[l])
-            o[l] = w
-            q1[l] += wo[l] * w
-            q2[l] += w * w
-    else:
-        for l in range(n):
-            o[l] = s[l] + e[l] + sg * od[l]
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -633,12 +595,7 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
                     has[mm[z]] = True
             F = f5[x, y]
             if mode == 1:
-                for i in range(nq):
-                    for c in range(C):
-                        fi = F[i, c]
-                        rd = part2[x, c]
-                        for l in range(L):
-                            rd[l] += fi[l] * fi[l]
+                _add_squares(F, part2[x])
             if z1 >= 0:
                 # collision on the occupied z-range [z0, z1] of the row (zero-based views vectorize)
                 l0 = z0 * B
@@ -704,19 +661,19 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
                             a = lo
                             b1 = min(hi, l0)
                             if b1 > a:
-                                _stream_copy(mode, o[a + d : b1 + d], s[a:b1], fo[a + d : b1 + d], wo[a + d : b1 + d],
-                                             q1[a + d : b1 + d], q2[a + d : b1 + d])
+                                _stream_piece(mode, True, o[a + d : b1 + d], s[a:b1], s[:0], s[:0], sg, fo[a + d : b1 + d],
+                                              wo[a + d : b1 + d], q1[a + d : b1 + d], q2[a + d : b1 + d])
                             a = max(lo, l0)
                             b1 = min(hi, l0 + n)
                             if b1 > a:
-                                _stream_collide(mode, o[a + d : b1 + d], s[a:b1], ep[a - l0 : b1 - l0],
-                                                op[a - l0 : b1 - l0], sg, fo[a + d : b1 + d], wo[a + d : b1 + d],
-                                                q1[a + d : b1 + d], q2[a + d : b1 + d])
+                                _stream_piece(mode, True, o[a + d : b1 + d], s[a:b1], ep[a - l0 : b1 - l0],
+                                              op[a - l0 : b1 - l0], sg, fo[a + d : b1 + d], wo[a + d : b1 + d],
+                                              q1[a + d : b1 + d], q2[a + d : b1 + d])
                             a = max(lo, l0 + n)
                             b1 = hi
                             if b1 > a:
-                                _stream_copy(mode, o[a + d : b1 + d], s[a:b1], fo[a + d : b1 + d], wo[a + d : b1 + d],
-                                             q1[a + d : b1 + d], q2[a + d : b1 + d])
+                                _stream_piece(mode, True, o[a + d : b1 + d], s[a:b1], s[:0], s[:0], sg, fo[a + d : b1 + d],
+                                              wo[a + d : b1 + d], q1[a + d : b1 + d], q2[a + d : b1 + d])
                     continue  # streamed above
                 else:
                     # short runs (the long-run path's per-call costs eat its gain: about even at n = 128,
@@ -762,7 +719,7 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
             else:
                 src = F  # empty row: pass-through
             # push-streaming: f_i(r + c_i) = post_i(r); z-shift is an offset in the row. The loops repeat
-            # _stream_copy's on purpose: calling it per (direction, channel) here made 1-3 rhs sweeps 1.25x slower
+            # _stream_piece's on purpose: calling it per (direction, channel) here made short rows 1.25x slower
             for i in range(nq):
                 tx = x + _CX[i]
                 ty = y + _CY[i]
@@ -966,12 +923,7 @@ def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: 
             nrows = min(G, ny - y0)
             F = f5[x, blk]
             if mode == 1:
-                for i in range(nq):
-                    for c in range(C):
-                        fi = F[i, c]
-                        rd = part2[x, c]
-                        for l in range(R):
-                            rd[l] += fi[l] * fi[l]
+                _add_squares(F, part2[x])
             # occupied nodes j0 .. j1 - 1 of the block (flat (row, z) index): only they collide
             j0 = -1
             j1 = -1
