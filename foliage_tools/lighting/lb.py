@@ -102,8 +102,8 @@ BLAS version of the sweep at 64^3 / 128^3 with 57 rhs, 2.5x with brown nodes
   there, and the few slots a z-shift wraps into (inflow slots on the z faces
   of the next row) are saved and put back. Against sweeping such rows one by
   one (the previous kernel; same process, alternating, this 2-core EPYC host)
-  at 1-3 rhs: 1.85-2.2x on a uniformly occupied 64^3 / 128^3 grid, 1.4-1.7x
-  on the dense sphere, 1.25-1.4x on the example tree (per-row loops run over
+  at 1-3 rhs: 1.7-2.3x on a uniformly occupied 64^3 / 128^3 grid, 1.3-1.8x
+  on the dense sphere, 1.25-1.45x on the example tree (per-row loops run over
   only 64-128 values, where the cost of entering each loop dominates).
 
 ``_reference_step`` is the plain numpy version of the update on the paper's 19
