@@ -25,24 +25,25 @@ from foliage_tools.pipeline.report import Report
 from foliage_tools.pipeline.spp import DEPTH_PATHS, depth_path
 from foliage_tools.scene.read import read_scene
 
-#: LB node x right-hand-side updates per second, many (>= 19) / few right-hand sides
-#: (bench_lb_issue.py, 2026-11-24: fused sweep 57 rhs ~205 MLUPS, full 18-base bakes 202-237;
-#: 3 rhs 57 at 64^3, 88 at 128^3).
-LB_MLUPS_MANY, LB_MLUPS_FEW = 200e6, 60e6
+#: All rates from one `make bench` on 2026-11-24 (session 4; AMD EPYC, 2 cores, numba triad 35 GB/s). The
+#: previous session's host (94 GB/s) ran most of these 1.4-2x faster: estimates, not promises.
+#: LB node x right-hand-side updates per second, many (>= 19) / few right-hand sides (bench_lb_issue.py:
+#: fused sweep 57 rhs 113-116 MLUPS, 18-base bake of the example at 128^3 122; 3 rhs 92-102 on a uniform grid,
+#: 64-73 for the example tree's sun solve at 64^3 / 128^3).
+LB_MLUPS_MANY, LB_MLUPS_FEW = 120e6, 70e6
 #: LB sweeps to tolerance 1e-5 per node of the longest grid edge (bench_lb_issue.py bake rows:
 #: 68 sweeps at 66 nodes, 132 at 130, physical absorption; lower absorption needs more).
 LB_SWEEPS_PER_EDGE = 1.05
-#: Seconds per leaf of the area density kernel (bench_density.py 2026-11-24: 100k leaves 0.16 s, 1M 1.5 s).
-DENSITY_S_PER_LEAF = 1.6e-6
-#: smax: reference pairs per second (O(N^2), bench_smax.py 2026-11-24: 40k leaves 2.77 s, 100k 16.9 s) and
-#: fast path per leaf (40k 0.178 s, 100k 0.352 s).
-SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 5.8e8, 4.0e-6
-#: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 34 in 25 s on
-#: 2026-11-24; 44-56 s on the earlier host).
-SPP_RAYS_PER_S = 1.0e6
-#: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py 2026-11-24: 6.2e6 on a 2k-leaf
-#: crown; `foliage bench` on the example, setup included: 8M paths in 2.7 s).
-REFERENCE_PATHS_PER_S = 3.0e6
+#: Seconds per leaf of the area density kernel (bench_density.py: 100k leaves 0.23 s, 1M 2.07 s).
+DENSITY_S_PER_LEAF = 2.2e-6
+#: smax: reference pairs per second (O(N^2), bench_smax.py: 40k leaves 4.26 s, 100k 26.4 s) and
+#: fast path per leaf (40k 0.195 s, 100k 0.562 s).
+SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 3.8e8, 5.3e-6
+#: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 34 in 42 s).
+SPP_RAYS_PER_S = 6.5e5
+#: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py: 3.9e6 on a 2k-leaf crown;
+#: `foliage bench` on the example, setup included: 8M paths in 3.8 s).
+REFERENCE_PATHS_PER_S = 2.0e6
 
 
 def available_memory() -> float:
