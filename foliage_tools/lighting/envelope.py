@@ -88,11 +88,13 @@ S1 / D needs both sums blurred alike (D from two grids and S1 from one
 made nearly empty bins absurdly long, τ -12% at 40k leaves).
 
 Accuracy. On uniform balls (τ R = 2) the fast path's s_max differs from the
-reference's by a median 1.5% (95th percentile 7.1%) at 1.5k leaves, 1.7%
-(5.2%) at 6k, 0.9% (4.1%) at 20k, 0.7-0.8% (3.5-3.8%, two crowns) at 40k and
-0.6% (2.8%) at 100k, with τ within 1.2% (``benchmarks/bench_smax.py``; bins
-with s_max >= 0.05 R).
-On one grid of step h (``fast_fine_grid=False``): 1.0% (5.3%) at 40k, 0.8%
+reference's by a median 0.8% (95th percentile 2.6%) at 1.5k leaves, 0.6%
+(2.1%) at 6k, 0.8% (2.0%) at 20k, 0.5% (1.7%) at 40k and 0.45% (1.5%) at
+100k, with τ within 0.7% (``benchmarks/bench_smax.py``; bins with s_max >=
+0.05 R). That is with the near field out to r_2 = 4.3 h (the default); with
+r_2 = 2.5 h it was 1.5% (7.1%) at 1.5k, 0.7% (3.5%) at 40k, 0.6% (2.8%) at
+100k, for about half the time at 40k-100k (``fast_blend_start_cells``).
+On one grid of step h (``fast_fine_grid=False``) and r_2 = 2.5 h: 1.0% (5.3%) at 40k, 0.8%
 (4.2%) at 100k; with that grid and the octant-mean projected area in place
 of the fit (before the fit): 1.2% (6.0%) and 0.9% (4.7%). At 40k leaves (1000
 leaves summed exactly, all-pairs sums that include only one cause) the
@@ -146,12 +148,12 @@ BIN_SOLID_ANGLE = 4.0 * math.pi / N_DIRECTIONS
 
 #: ``path="auto"`` uses the reference path below this many leaves and the fast
 #: path from it on. Measured on uniform balls (``benchmarks/bench_smax.py``):
-#: the fast path's s_max error against the reference falls with N (median 1.5%
-#: at 1.5k, 1.7% at 6k, 0.9% at 20k, 0.8% at 40k leaves; the 95th percentile
-#: 7.1%, 5.2%, 4.1%, 3.5-3.8%) while the reference's O(N²) cost grows (0.7 s at
-#: 20k leaves, 2.7-5.5 s at 40k on 2 shared cores, with the load). Below 20k the reference is
-#: affordable and is the method itself; from 20k on the fast path's median
-#: error is below ~1%.
+#: the fast path's s_max error against the reference (median 0.8% at 1.5k,
+#: 0.6% at 6k, 0.8% at 20k, 0.5% at 40k leaves; the 95th percentile 2.6%,
+#: 2.1%, 2.0%, 1.7%) while the reference's O(N²) cost grows (1.0 s at 20k
+#: leaves, 2.7-5.5 s at 40k on 2 shared cores, with the load; the fast path
+#: 0.15 s and 0.30 s). Below 20k the reference is affordable and is the method
+#: itself; from 20k on the fast path's 95th percentile error is at most ~2%.
 AUTO_FAST_THRESHOLD = 20000
 
 TAU_ESTIMATORS = ("moments", "farthest")
@@ -273,17 +275,21 @@ class EnvelopeParams:
     """Fast path: cap on grid cells along any axis (memory/FFT size bound), for the
     coarse grid and for the fine grid of ``fast_fine_grid`` (which is dropped when
     the cap leaves it less than 4/3 finer than the coarse one)."""
-    fast_blend_start_cells: float = 2.3
+    fast_blend_start_cells: float = 4.0
     """Fast path: r_1 in grid cells, where the near field starts to hand over to the
     far field. Must be >= √2: then the only grid offset within a cell that the far
     kernel sees is the cell diagonal, and a leaf's own mass is removed exactly.
-    With r_2 = 2.5, r_1 = 2.3 (a short blend) costs no more pairs than 1.5 and
-    gives a smaller error (95th percentile at 40k leaves 6.1% instead of 7.4%, one
-    grid, octant-mean projection): the near field is exact over more of the pairs
-    it computes anyway. With one grid and the projection fit (95th percentile at
-    40k leaves): r_1/r_2 = 2.3/2.5 5.33%, 2.0/2.5 5.98%, 2.3/2.6 5.40%, 2.5/2.7
-    5.27% (1.25x the pairs), 1.5/2.2 6.9% (0.7x)."""
-    fast_split_cells: float = 2.5
+    A short blend (r_2 - r_1 = 0.2-0.3) costs no more pairs than a long one and
+    gives a smaller error: the near field is exact over more of the pairs it
+    computes anyway. The near field's reach sets the accuracy: the s_max error
+    at 40k leaves (``tests/unit/test_envelope_fast.py``' measure, crown seeds
+    1-5, median / 95th percentile, with the fine grid) is 0.70-0.74% / 3.4-3.6%
+    at r_1/r_2 = 2.3/2.5, 0.46-0.49% / 1.87-1.95% at 3.7/4.0 and 0.43-0.46% /
+    1.66-1.82% at 4.0/4.3 (the default); one grid: 0.95-1.05% / 5.3-5.7%, 0.74-0.80%
+    / 2.9-3.3% and 0.52-0.55% / 3.0-3.4%. The pairs grow as r_2³: at 40k leaves
+    4.5M, 17.6M and 21.6M, and the fast path took 0.195, 0.28 and 0.30 s
+    (``benchmarks/bench_smax.py``, 2 cores, one run each; the reference 3.9-4.3 s)."""
+    fast_split_cells: float = 4.3
     """Fast path: r_2 in grid cells, beyond which only the far field counts (> r_1)."""
     fast_fine_grid: bool = True
     """Fast path: compute the far field from r_1 to the mid range on a second grid of
