@@ -153,7 +153,7 @@ BIN_SOLID_ANGLE = 4.0 * math.pi / N_DIRECTIONS
 #: 0.6% at 6k, 0.8% at 20k, 0.5% at 40k leaves; the 95th percentile 2.6%,
 #: 2.1%, 2.0%, 1.7%) while the reference's O(N²) cost grows (1.0 s at 20k
 #: leaves, 2.7-5.5 s at 40k on 2 shared cores, with the load; the fast path
-#: 0.15 s and 0.30 s). Below 20k the reference is affordable and is the method
+#: 0.15 s and 0.26 s). Below 20k the reference is affordable and is the method
 #: itself; from 20k on the fast path's 95th percentile error is at most ~2%.
 AUTO_FAST_THRESHOLD = 20000
 
@@ -289,7 +289,8 @@ class EnvelopeParams:
     1.66-1.82% at 4.0/4.3 (the default); one grid: 0.95-1.05% / 5.3-5.7%, 0.74-0.80%
     / 2.9-3.3% and 0.52-0.55% / 3.0-3.4%. The pairs grow as r_2³: at 40k leaves
     4.5M, 17.6M and 21.6M, and the fast path took 0.195, 0.28 and 0.30 s
-    (``benchmarks/bench_smax.py``, 2 cores, one run each; the reference 3.9-4.3 s)."""
+    (``benchmarks/bench_smax.py``, 2 cores, one run each; the reference 3.9-4.3 s);
+    0.26 s at 4.0/4.3 since the near sums run in lanes (``_near_kernel``)."""
     fast_split_cells: float = 4.3
     """Fast path: r_2 in grid cells, beyond which only the far field counts (> r_1)."""
     fast_fine_grid: bool = True

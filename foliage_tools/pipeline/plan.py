@@ -37,8 +37,8 @@ LB_SWEEPS_PER_EDGE = 1.05
 #: Seconds per leaf of the area density kernel (bench_density.py: 100k leaves 0.23 s, 1M 2.07 s).
 DENSITY_S_PER_LEAF = 2.2e-6
 #: smax: reference pairs per second (O(N^2), bench_smax.py: 40k leaves 4.1-4.3 s, 100k 25-26 s) and
-#: fast path per leaf (near field to 4.3 cells: 40k 0.30 s, 100k 1.03 s).
-SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 3.8e8, 9.0e-6
+#: fast path per leaf (near field to 4.3 cells: 40k 0.26 s, 100k 0.62 s).
+SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 3.8e8, 6.3e-6
 #: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 34 in 42 s).
 SPP_RAYS_PER_S = 6.5e5
 #: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py: 3.9e6 on a 2k-leaf crown;
