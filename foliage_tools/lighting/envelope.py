@@ -125,9 +125,9 @@ import time
 from dataclasses import dataclass, field
 from functools import lru_cache
 
+import numba
 import numpy as np
 import scipy.fft
-import numba
 from numba import njit, prange
 
 __all__ = [
@@ -679,17 +679,16 @@ def _near_kernel(x, an, cell, start, order, lo, h, shape, r1, r2, inv_omega, max
     of cells are first compacted (branch-free) to those within r_2.
     """
     n_leaves = x.shape[0]
-    nt = lanes
-    accs = np.zeros((nt, n_leaves, 16))  # per lane: D in bins 0-7, S1 in 8-15
+    accs = np.zeros((lanes, n_leaves, 16))  # per lane: D in bins 0-7, S1 in 8-15
     r2sq = r2 * r2
     inv_span = 1.0 / (r2 - r1)
     nchunk = (n_leaves + 255) // 256
-    pairs = np.zeros(nt, dtype=np.int64)
-    for lane in prange(nt):
+    pairs = np.zeros(lanes, dtype=np.int64)
+    for lane in prange(lanes):
         acc = accs[lane]
         buf = np.empty(_NEAR_BLOCK, dtype=np.int64)
         npairs = 0
-        for s in range(lane, nchunk, nt):
+        for s in range(lane, nchunk, lanes):
             for p in range(s * 256, min(n_leaves, (s + 1) * 256)):
                 i_home = cell[p, 0]
                 px = x[p, 0]
@@ -741,7 +740,7 @@ def _near_kernel(x, an, cell, start, order, lo, h, shape, r1, r2, inv_omega, max
         for b in range(8):
             dsum = 0.0
             ssum = 0.0
-            for t in range(nt):
+            for t in range(lanes):
                 dsum += accs[t, p, b]
                 ssum += accs[t, p, 8 + b]
             depth[order[p], b] = dsum
@@ -1220,9 +1219,11 @@ def _fast_depths(x, nl, area, params: EnvelopeParams) -> tuple[np.ndarray, np.nd
         depth += far_depth
         tau_depth = None
     s1 += far_s1
-    depth = np.maximum(depth, 0.0)
-    tau_depth = depth if tau_depth is None else tau_depth
-    unsorted = [np.empty_like(a) for a in (depth, tau_depth, s1)]
-    for a, u in zip((depth, tau_depth, np.maximum(s1, 0.0)), unsorted):
-        u[order] = a
-    return unsorted[0], unsorted[1], unsorted[2], stats
+
+    def unsorted(a: np.ndarray) -> np.ndarray:  # back to the caller's leaf order
+        out = np.empty_like(a)
+        out[order] = a
+        return out
+
+    depth = unsorted(np.maximum(depth, 0.0))
+    return depth, depth if tau_depth is None else unsorted(tau_depth), unsorted(np.maximum(s1, 0.0)), stats
