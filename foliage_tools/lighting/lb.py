@@ -813,7 +813,7 @@ def _stream_piece(mode, acc, o, s, e, od, sg, fo, wo, q1, q2):  # pragma: no cov
 
 
 @njit(fastmath=True, cache=True)
-def _stream_segment(mode, o, s, fo, wo, q1, q2, a, b, d, limit, wrap_z, B, Lr, e, od, sg, l0, l1, save):  # pragma: no cover - compiled
+def _stream_segment(mode, o, s, fo, wo, q1, q2, a, b, d, limit, wrap_z, B, Lr, e, od, sg, l0, l1, save, slots):  # pragma: no cover - compiled
     """Push-stream the source run [a, b) of one direction and channel into the target block ``o`` at offset d.
 
     ``o, fo, wo, q1, q2`` are the target block's runs in out, f, wt, part1, part2 (only [0, limit)
@@ -824,20 +824,22 @@ def _stream_segment(mode, o, s, fo, wo, q1, q2, a, b, d, limit, wrap_z, B, Lr, e
     faces, so they are saved here and put back, and then the mode 1/2 sums are taken over the
     target run in a second pass while it is in cache (subtracting a wrong term again would leave
     float round-off in a residual that can be ~1e-14). Without such slots (z-shift 0, or one row
-    per block) the sums are taken in the same pass.
+    per block) the sums are taken in the same pass. ``save`` and ``slots`` are scratch for the
+    saved values (G B) and the wrapped slots' offsets (G).
     """
     a = max(a, -d)
     b = min(b, limit - d)
     if b <= a:
         return
-    ns = 0
+    ns = 0  # wrapped slots: the target offsets of the source's z-face nodes in [a, b)
     if wrap_z >= 0:
         for g in range(a // Lr, (b + Lr - 1) // Lr):
             t = g * Lr + wrap_z * B + d
             if t - d >= a and t - d + B <= b and t >= 0 and t + B <= limit:
+                slots[ns] = t
                 for k in range(B):
-                    save[ns + k] = o[t + k]
-                ns += B
+                    save[ns * B + k] = o[t + k]
+                ns += 1
     acc = ns == 0
     none = e[:0]
     c1 = min(b, l0)
@@ -859,13 +861,10 @@ def _stream_segment(mode, o, s, fo, wo, q1, q2, a, b, d, limit, wrap_z, B, Lr, e
         _stream_piece(mode, acc, o[x0:x1], s[c0:b], none, none, sg, fo[x0:x1], wo[x0:x1], q1[x0:x1], q2[x0:x1])
     if ns == 0:
         return
-    ns = 0
-    for g in range(a // Lr, (b + Lr - 1) // Lr):
-        t = g * Lr + wrap_z * B + d
-        if t - d >= a and t - d + B <= b and t >= 0 and t + B <= limit:
-            for k in range(B):
-                o[t + k] = save[ns + k]
-            ns += B
+    for w in range(ns):
+        t = slots[w]
+        for k in range(B):
+            o[t + k] = save[w * B + k]
     if mode == 1:
         oo = o[a + d : b + d]
         ff = fo[a + d : b + d]
@@ -914,6 +913,7 @@ def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: 
         rexp = np.empty((nmat, R), dtype=f.dtype)
         has = np.zeros(nmat, dtype=np.bool_)
         save = np.empty(G * B, dtype=f.dtype)
+        slots = np.empty(G, dtype=np.int64)
         ae = np.empty((NH, NH), dtype=f.dtype)  # thread-local copies of AE[m, c], AO[m, c]
         ao = np.empty((NH, NH), dtype=f.dtype)
         sgn = np.empty(2, dtype=f.dtype)  # +1 / -1 in the field's dtype (a float64 sign would promote)
@@ -981,7 +981,7 @@ def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: 
                         fo = f5[tx, blk, i, c] if mode != 0 else s
                         wo = wt5[tx, blk, i, c] if mode == 2 else s
                         _stream_segment(mode, out5[tx, blk, i, c], s, fo, wo, q1, q2, g0 * Lr, g1 * Lr,
-                                        cy * Lr + cz * B, nrows * Lr, wrap_z, B, Lr, ep, op, sg, l0, l1, save)
+                                        cy * Lr + cz * B, nrows * Lr, wrap_z, B, Lr, ep, op, sg, l0, l1, save, slots)
                     # the row whose target row is in the neighbouring block
                     tb = -1
                     if cy > 0 and nrows == G and blk + 1 < nb:
@@ -998,7 +998,7 @@ def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: 
                         fo = f5[tx, tb, i, c] if mode != 0 else s
                         wo = wt5[tx, tb, i, c] if mode == 2 else s
                         _stream_segment(mode, out5[tx, tb, i, c], s, fo, wo, q1, q2, a, a + Lr, d, lim, wrap_z, B, Lr,
-                                        ep, op, sg, l0, l1, save)
+                                        ep, op, sg, l0, l1, save, slots)
 
 
 @njit(cache=True)
@@ -1169,7 +1169,8 @@ class _Operator:
         self.C = problem.channels
         self.K = len(problem.boundaries)
         row = nz * self.K
-        self.G = 1 if row >= _ROW_KERNEL_MIN else max(1, min(ny, _BLOCK_VALUES // row))
+        self.long_rows = row >= _ROW_KERNEL_MIN  # swept row by row (``_sweep_rows``), G = 1
+        self.G = 1 if self.long_rows else max(1, min(ny, _BLOCK_VALUES // row))
         self.NB = -(-ny // self.G)
         self.L = self.G * nz * self.K  # a block's run
         self.state_shape = (nx, self.NB, NQ, self.C, self.G * nz, self.K)
@@ -1270,7 +1271,7 @@ class _Operator:
         return np.ascontiguousarray(np.tile(s, (1, self.G * self.nz)), dtype=self.dtype)
 
     def _kernel(self, f, out, mode, wt, p1, p2) -> None:
-        if self.nz * self.K >= _ROW_KERNEL_MIN:  # then G = 1: the row layout
+        if self.long_rows:
             _sweep_rows(f, out, self.rho, self.mat, self.A, self.AE, self.AO, mode, wt, p1, p2)
         else:
             _sweep_blocks(f, out, self.rho, self.mat, self.AE, self.AO, mode, wt, p1, p2)
