@@ -12,15 +12,29 @@ from foliage_tools.cli import console
 from foliage_tools.cli.common import OUT, SCENE, bake_options, common_options, execute, leaf_optics_from_flags, run, setup_logging
 
 
+def _eight_directions(ctx: click.Context, param: click.Parameter, value: int) -> int:
+    if value != 8:
+        raise click.BadParameter(
+            f"{value} is not supported: boulanger2008 eq. 5.28 defines 8 sample directions (the cube diagonals, "
+            "each binning the octant around it), and primvars:foliage:smax stores 8 values per leaf (elementSize 8). "
+            "Leave the option out or pass 8.",
+            ctx=ctx, param=param,
+        )
+    return value
+
+
 @click.command()
 @SCENE
 @OUT
+@click.option("--directions", type=int, default=8, show_default=True, callback=_eight_directions,
+              help="Sample directions ω_j per leaf. Only 8, the cube diagonals of eq. 5.28, is defined: each bins "
+                   "the octant around it, and the primvars hold 8 values per leaf.")
 @click.option("--path", "path_", type=click.Choice(["auto", "reference", "fast"]), default="auto", show_default=True,
               help="reference: the thesis' O(N²) neighbour binning (sec. 5.6); fast: exact near sums + FFT far field; "
                    "auto: reference below 20k leaves.")
 @bake_options
 @common_options
-def smax(scene: Path, out: Path, path_: str, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+def smax(scene: Path, out: Path, directions: int, path_: str, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
          as_json: bool, quiet: bool, verbose: int) -> None:
     """Per-leaf envelope distances s_max and Boulanger's tree lighting (boulanger2008 ch. 5).
 

@@ -86,6 +86,16 @@ def test_config_file_sets_options_and_flags_override(tmp_path):
     assert r.returncode == 2 and "unknown key 'colour'" in r.stderr
 
 
+def test_directions_flag_of_design_accepts_the_papers_8_and_refuses_others(tmp_path):
+    # DESIGN.md section 3: `foliage smax SCENE -o OUT.usda [--directions 8]`
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "d8.usda", "--directions", "8", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["stats"]["leaves"] > 0
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "d6.usda", "--directions", "6")
+    assert r.returncode == 2 and "eq. 5.28" in r.stderr and "elementSize 8" in r.stderr
+    assert not (tmp_path / "d6.usda").exists()
+
+
 def test_bad_leaf_optics_is_a_usage_error(tmp_path):
     r = foliage("smax", EXAMPLE, "-o", tmp_path / "o.usda", "--leaf-optics", "0.7,0.7")
     assert r.returncode == 2 and "≤ 1" in r.stderr
