@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -71,12 +72,61 @@ class LayerEdits:
     attributes: list[AttributeEdit] = field(default_factory=list)
 
 
-def check_output_path(input_path: Path, out: Path) -> None:
-    """Refuse outputs that would destroy the input or cannot be written."""
+def input_files(input_path: Path) -> frozenset[Path]:
+    """Every file the input stage reads: its layers (sublayers, references, payloads) and assets (``.vdb`` grids, ...).
+
+    ``UsdUtils.ComputeAllDependencies`` opens the layers without composing the
+    stage. Resolved absolute paths; cached per path and modification time.
+    """
+    p = Path(input_path).resolve()
+    try:
+        mtime = p.stat().st_mtime_ns
+    except OSError:
+        return frozenset()
+    return _input_files(p, mtime)
+
+
+@lru_cache(maxsize=8)
+def _input_files(path: Path, _mtime: int) -> frozenset[Path]:
+    from pxr import UsdUtils
+
+    try:
+        layers, assets, _unresolved = UsdUtils.ComputeAllDependencies(Sdf.AssetPath(str(path)))
+    except Exception:  # an unreadable input is reported by the reader, with its own message
+        return frozenset({path})
+    files = {Path(layer.realPath).resolve() for layer in layers if layer.realPath}
+    files.update(Path(a).resolve() for a in assets if a)
+    files.add(path)
+    return frozenset(files)
+
+
+def check_output_path(input_path: Path, out: Path, extra_outputs=()) -> None:
+    """Refuse outputs that would destroy the input or cannot be written.
+
+    The input is every file its stage reads, not only the named layer: writing
+    over a sublayer (``foliage spp a.lb.usda -o a.density.usda``, where
+    a.lb.usda sublayers a.density.usda) or a ``.vdb`` the input uses would change
+    the input, and could make the layer stack a cycle. ``extra_outputs``: the
+    ``.vdb`` files the stage will write; before they are known, any ``.vdb`` the
+    input uses that is named like this output's grids (``OUT.vdb``,
+    ``OUT.*.vdb``) is refused.
+    """
     if out.suffix not in USD_EXTENSIONS:
         raise OutputError(f"@{out}@: the output must be a USD layer ({', '.join(USD_EXTENSIONS)}).")
     if out.resolve() == Path(input_path).resolve():
         raise OutputError(f"@{out}@ is the input file; choose another output (inputs are never modified).")
+    used = input_files(input_path)
+    target = out.resolve()
+    grids = [Path(e).resolve() for e in extra_outputs]
+    grids += [f for f in used if f.suffix == ".vdb" and f.parent == target.parent
+              and (f.stem == target.stem or f.name.startswith(target.stem + "."))]
+    for f in [target, *grids]:
+        if f in used:
+            what = "this output" if f == target else f"its grid file {f.name}"
+            raise OutputError(
+                f"@{out}@: {what} is a file the input @{input_path}@ uses (through its sublayers, references or "
+                "grids); writing it would change the input. Choose another output path (inputs are never modified)."
+            )
     check_writable(out)
 
 
@@ -94,8 +144,8 @@ def write_layer(input_path: Path, out: Path, edits: LayerEdits, *, input_stage_m
     """Write the output layer and its grid files atomically; return the paths written."""
     input_path = Path(input_path)
     out = Path(out)
-    check_output_path(input_path, out)
     vdb_files = [v.vdb_file for v in edits.volumes]
+    check_output_path(input_path, out, vdb_files)
     if len(set(vdb_files)) != len(vdb_files):
         raise ValueError("each volume needs its own .vdb file")
     with atomic_outputs([*vdb_files, out]) as temps:

@@ -96,6 +96,23 @@ def test_output_equal_to_input_is_refused(simple_tree):
     assert sha256(simple_tree) == before
 
 
+def test_output_over_a_layer_or_grid_the_input_uses_is_refused(tmp_path, simple_tree):
+    # chained stages: b.usda sublayers a.usda, which refers to a.vdb; writing either of them again
+    # from b would change b's input (and a.usda over itself would make the layer stack a cycle)
+    a, b = tmp_path / "a.usda", tmp_path / "b.usda"
+    assert foliage("density", simple_tree, "-o", a).returncode == 0
+    assert foliage("density", a, "-o", b).returncode == 0
+    before = {f.name: sha256(f) for f in tmp_path.iterdir() if f.is_file()}
+    r = foliage("density", b, "-o", a)
+    assert r.returncode == 2 and "a file the input" in r.stderr and "a.usda" in r.stderr
+    # a.usdc would put its grids in a.vdb, which a.usda (used by b) refers to
+    r = foliage("density", b, "-o", tmp_path / "a.usdc")
+    assert r.returncode == 2 and "a.vdb" in r.stderr
+    assert {f.name: sha256(f) for f in tmp_path.iterdir() if f.is_file()} == before
+    # an unrelated name still works
+    assert foliage("density", b, "-o", tmp_path / "c.usda").returncode == 0
+
+
 def test_unwritable_output_dir_exits_2(simple_tree):
     # /proc refuses new files even to root (CI runs as root, so chmod would not do)
     r = foliage("density", simple_tree, "-o", "/proc/o.usda")
