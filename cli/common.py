@@ -71,8 +71,26 @@ def setup_logging(verbose: int, quiet: bool) -> None:
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
 
 
+def _long_names(command: click.Command) -> dict[str, str]:
+    """Config keys of a command: each option's long names (without ``--``, dashes as underscores) -> its parameter."""
+    names = {}
+    for p in command.params:
+        if isinstance(p, click.Option) and p.expose_value:
+            for opt in p.opts + p.secondary_opts:
+                if opt.startswith("--"):
+                    names[opt[2:].replace("-", "_")] = p.name
+    return names
+
+
 def _load_config(ctx: click.Context, _param, value: Path | None):
-    """``--config FILE.toml``: every option has a key (its long name, dashes or underscores); flags override."""
+    """``--config FILE.toml``: every option has a key (its long name, dashes or underscores); flags override.
+
+    Top-level keys apply to every bake command; one that this command does not
+    have but another ``foliage`` command does (``resolution`` for ``smax``) is
+    skipped, so one file can serve a whole pipeline. A ``[COMMAND]`` table
+    applies to that command and wins; there, and for keys no command has, an
+    unknown key is an error (a typo must not be silently ignored).
+    """
     if value is None:
         return value
     import tomllib
@@ -83,19 +101,25 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
         raise click.BadParameter(f"@{value}@: no such file.", ctx=ctx, param_hint="--config") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise click.BadParameter(f"@{value}@ is not valid TOML ({exc}).", ctx=ctx, param_hint="--config") from None
-    # top-level keys apply to every command, a [COMMAND] table to that command (and wins)
-    section = {k: v for k, v in data.items() if not isinstance(v, dict)}
-    section.update(data.get(ctx.info_name, {}) if isinstance(data.get(ctx.info_name), dict) else {})
-    known = {p.name for p in ctx.command.params}
+    known = _long_names(ctx.command)
+    root = ctx.find_root().command
+    others = set()
+    for cmd in getattr(root, "commands", {}).values():
+        others.update(_long_names(cmd))
+    table = data.get(ctx.info_name) if isinstance(data.get(ctx.info_name), dict) else {}
+    entries = [(k, v, False) for k, v in data.items() if not isinstance(v, dict)] + [(k, v, True) for k, v in table.items()]
     defaults = {}
-    for key, val in section.items():
+    for key, val, in_table in entries:
         name = key.replace("-", "_")
         if name not in known:
+            if not in_table and name in others:
+                continue  # another command's option in the shared part of the file
+            listed = ", ".join(sorted(k.replace("_", "-") for k in known))
             raise click.BadParameter(
-                f"@{value}@: unknown key {key!r} for `foliage {ctx.info_name}`; known: {', '.join(sorted(known))}.",
+                f"@{value}@: unknown key {key!r} for `foliage {ctx.info_name}`; known: {listed}.",
                 ctx=ctx, param_hint="--config",
             )
-        defaults[name] = val
+        defaults[known[name]] = val
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
     return value
 
