@@ -149,6 +149,10 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed
 
     def body() -> int:
         setup_logging(verbose, quiet)
+        if plot is not None:  # before minutes of tracing, not after
+            from foliage_tools.bench.plot import check_plot_path
+
+            check_plot_path(plot)
         params = BenchParams(
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,

@@ -4,7 +4,24 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from foliage_tools.errors import OutputError
 from foliage_tools.scene.atomic import atomic_outputs, check_writable
+
+
+def check_plot_path(path: Path) -> None:
+    """Refuse, before any work, a plot path whose directory is not writable or whose format matplotlib cannot write."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    path = Path(path)
+    formats = Figure().canvas.get_supported_filetypes()
+    fmt = path.suffix.lstrip(".").lower()
+    if fmt not in formats:
+        raise OutputError(f"@{path}@: matplotlib cannot write {fmt or 'files without an extension'}; use one of "
+                          f"{', '.join('.' + f for f in sorted(formats))} (.png, .svg or .pdf are usual).")
+    check_writable(path)
 
 
 def write_plot(path: Path, stats: dict, title: str) -> Path:
@@ -14,7 +31,7 @@ def write_plot(path: Path, stats: dict, title: str) -> Path:
     import matplotlib.pyplot as plt
 
     path = Path(path)
-    check_writable(path)
+    check_plot_path(path)
     fig, ax = plt.subplots(figsize=(6, 4.5), dpi=120)
     for m in stats["methods"]:
         if not m["available"] or m["rel_rms_total"] is None or m["rel_rms_scattered"] is None:
@@ -34,6 +51,6 @@ def write_plot(path: Path, stats: dict, title: str) -> Path:
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     with atomic_outputs([path]) as temps:
-        fig.savefig(temps[path], format=path.suffix.lstrip(".") or "png")
+        fig.savefig(temps[path], format=path.suffix.lstrip(".").lower())
     plt.close(fig)
     return path

@@ -3,13 +3,21 @@
 OUTDIR/<name>.density.usda -> .smax.usda -> .spp.usda -> .lb.usda (the last
 holds the whole bake, since each layer sublayers the one before), a preview
 image comparing direct light with the LB and s_max bakes, and with ``with_reference`` a bench
-report (JSON + plot). Each stage's files are written atomically; if a stage
-fails, the earlier stages' complete outputs stay and the error names the stage.
+report (JSON + plot).
+
+All or nothing, like every command's outputs: the stages write into a
+temporary sibling of OUTDIR (same parent, so the relative paths to the input
+stay valid) and their files are moved into OUTDIR only when every stage has
+succeeded. A failed or interrupted bake leaves OUTDIR as it was (and removes
+the directories it created); the error names the stage.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,48 +47,28 @@ def _stage(name: str, fn, *args, **kwargs):
 
 
 def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress | None = None) -> Report:
-    from foliage_tools.pipeline.density import run_density
-    from foliage_tools.pipeline.lb import LBBakeParams, run_lb
-    from foliage_tools.pipeline.smax import SmaxParams, run_smax
-    from foliage_tools.pipeline.spp import SppParams, run_spp
-
     progress = progress or Silent()
     report = Report(command="bake", inputs=[str(path)])
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise OutputError(f"@{outdir}@ exists and is not a directory; give a directory for the bake outputs.")
-    outdir.mkdir(parents=True, exist_ok=True)
-    stem = Path(path).stem
-    stages = {}
-    density_out = outdir / f"{stem}.density.usda"
-    stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution), progress=progress)
-    smax_out = outdir / f"{stem}.smax.usda"
-    stages["smax"] = _stage("smax", run_smax, density_out, smax_out, SmaxParams(optics=params.optics, sun=params.sun), progress=progress)
-    spp_out = outdir / f"{stem}.spp.usda"
-    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution), progress=progress)
-    lb_out = outdir / f"{stem}.lb.usda"
-    stages["lb"] = _stage(
-        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution), progress=progress
-    )
-    final = lb_out
-    from foliage_tools.pipeline.preview import PreviewParams, run_preview
-
-    # a picture of the bake: direct light beside direct + LB indirect, same exposure
-    stages["preview"] = _stage(
-        "preview", run_preview, final, outdir / f"{stem}.png",
-        PreviewParams(compare=("direct", "lb", "spp", "smax"), size=(512, 512), sun=params.sun), progress=progress,
-    )
-    if params.with_reference:
-        from foliage_tools.bench.plot import write_plot
-        from foliage_tools.pipeline.bench import BenchParams, run_bench
-        from foliage_tools.scene.atomic import atomic_outputs
-
-        bench = _stage("bench", run_bench, path, BenchParams(optics=params.optics, sun=params.sun, paths=params.reference_paths), progress=progress)
-        stages["bench"] = bench
-        json_path = outdir / "bench.json"
-        with atomic_outputs([json_path]) as temps:
-            temps[json_path].write_text(json.dumps(bench.as_json(), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-        bench.outputs += [str(json_path), str(write_plot(outdir / "bench.png", bench.stats, f"{Path(path).name}"))]
+    created = _make_parents(outdir.absolute().parent, outdir)
+    try:
+        work = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.tmp-", dir=outdir.absolute().parent))
+    except OSError as exc:
+        _remove_empty(created)
+        raise OutputError(f"@{outdir}@: cannot write in {outdir.absolute().parent} ({exc.strerror}); choose another output directory.") from None
+    try:
+        stages = _run_stages(path, work, params, progress)
+        moved = _move_into(work, outdir, path)
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        _remove_empty(created)
+        raise
+    shutil.rmtree(work, ignore_errors=True)
+    final = moved[work / f"{Path(path).stem}.lb.usda"]
+    for r in stages.values():
+        r.outputs = [str(moved.get(Path(o), o)) for o in r.outputs]
     for name, r in stages.items():
         report.outputs += r.outputs
         report.warnings += [f"{name}: {w}" for w in r.warnings]
@@ -90,3 +78,87 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
         "bench": stages["bench"].stats if "bench" in stages else None,
     }
     return report.finish()
+
+
+def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) -> dict[str, Report]:
+    """Every stage in order, each layer over the previous one, all written into ``work``; their reports."""
+    from foliage_tools.pipeline.density import run_density
+    from foliage_tools.pipeline.lb import LBBakeParams, run_lb
+    from foliage_tools.pipeline.preview import PreviewParams, run_preview
+    from foliage_tools.pipeline.smax import SmaxParams, run_smax
+    from foliage_tools.pipeline.spp import SppParams, run_spp
+
+    stem = Path(path).stem
+    stages = {}
+    density_out = work / f"{stem}.density.usda"
+    stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution), progress=progress)
+    smax_out = work / f"{stem}.smax.usda"
+    stages["smax"] = _stage("smax", run_smax, density_out, smax_out, SmaxParams(optics=params.optics, sun=params.sun), progress=progress)
+    spp_out = work / f"{stem}.spp.usda"
+    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution), progress=progress)
+    lb_out = work / f"{stem}.lb.usda"
+    stages["lb"] = _stage(
+        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution), progress=progress
+    )
+    # a picture of the bake: direct light beside direct + LB indirect, same exposure
+    stages["preview"] = _stage(
+        "preview", run_preview, lb_out, work / f"{stem}.png",
+        PreviewParams(compare=("direct", "lb", "spp", "smax"), size=(512, 512), sun=params.sun), progress=progress,
+    )
+    if params.with_reference:
+        from foliage_tools.bench.plot import write_plot
+        from foliage_tools.pipeline.bench import BenchParams, run_bench
+        from foliage_tools.scene.atomic import atomic_outputs
+
+        bench_params = BenchParams(optics=params.optics, sun=params.sun, paths=params.reference_paths, paths_flag="--reference-paths")
+        bench = _stage("bench", run_bench, path, bench_params, progress=progress)
+        stages["bench"] = bench
+        json_path = work / "bench.json"
+        with atomic_outputs([json_path]) as temps:
+            temps[json_path].write_text(json.dumps(bench.as_json(), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        bench.outputs += [str(json_path), str(write_plot(work / "bench.png", bench.stats, f"{Path(path).name}"))]
+    return stages
+
+
+def _make_parents(parent: Path, outdir: Path) -> list[Path]:
+    """Create the missing directories above OUTDIR (deepest last); return them, to remove on failure."""
+    missing = []
+    d = parent
+    while not d.exists():
+        missing.append(d)
+        d = d.parent
+    for d in reversed(missing):
+        try:
+            d.mkdir()
+        except OSError as exc:
+            _remove_empty(missing)
+            raise OutputError(f"@{outdir}@: cannot create the directory {d} ({exc.strerror}); choose another output directory.") from None
+    return missing
+
+
+def _remove_empty(dirs: list[Path]) -> None:
+    for d in dirs:  # deepest first
+        try:
+            d.rmdir()
+        except OSError:
+            pass
+
+
+def _move_into(work: Path, outdir: Path, path: Path) -> dict[Path, Path]:
+    """Move the finished files from ``work`` into OUTDIR (grids first, layers last); {work file: final file}."""
+    from foliage_tools.scene.write import input_files
+
+    files = sorted(work.iterdir(), key=lambda f: (f.suffix not in (".vdb",), f.suffix in (".usda", ".usdc", ".usd"), f.name))
+    used = input_files(path)
+    clash = [outdir / f.name for f in files if (outdir / f.name).resolve() in used]
+    if clash:
+        raise OutputError(f"@{clash[0]}@ is a file the input @{path}@ uses; bake into another directory (inputs are never modified).")
+    try:
+        outdir.mkdir(exist_ok=True)
+        moved = {}
+        for f in files:
+            os.replace(f, outdir / f.name)
+            moved[f] = outdir / f.name
+    except OSError as exc:
+        raise OutputError(f"@{outdir}@: cannot move the bake into place ({exc.strerror}).") from None
+    return moved

@@ -13,7 +13,7 @@ from foliage_tools.bench.registry import BenchContext, methods
 from foliage_tools.errors import UsageError
 from foliage_tools.geometry.rays import RayScene, count_crossings
 from foliage_tools.lighting.optics import LeafOptics
-from foliage_tools.pipeline.reference import ReferenceParams, bake_reference
+from foliage_tools.pipeline.reference import ReferenceParams, bake_reference, noise_warnings
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.pipeline.world import World
@@ -28,6 +28,8 @@ class BenchParams:
     paths: int = 4_000_000
     """Reference sun paths."""
     seed: int = 0
+    paths_flag: str = "--paths"
+    """The option that sets ``paths``, named in the warnings (``bake`` calls it --reference-paths)."""
 
 
 def _per_global_leaf(world: World, per_proto: dict[int, np.ndarray], n_leaves: int) -> np.ndarray:
@@ -97,6 +99,16 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
                 errors[key] = None
         rows.append({"name": m.name, "available": True, "description": m.description, "seconds": seconds, **errors, "stats": out.stats})
         progress.advance()
+    report.warnings.extend(noise_warnings(int(res.paths), float(res.noise_rel), params.paths_flag))
+    # a method's measured error is about sqrt(true² + noise²): below twice the noise it is not resolved
+    unresolved = [r["name"] for r in rows if r["available"] and r["rel_rms_scattered"] is not None
+                  and r["rel_rms_scattered"] < 2.0 * float(res.noise_rel)]
+    if unresolved:
+        report.warnings.append(
+            f"the E_scattered errors of {', '.join(unresolved)} are less than twice the reference's own noise "
+            f"({res.noise_rel:.3f}; an exact method would score about that), so they are not resolved. Raise {params.paths_flag}: "
+            f"4x the paths ({4 * int(res.paths):,}) at best halve the noise."
+        )
     report.stats = {
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(),

@@ -7,6 +7,7 @@ instance's own values).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +24,29 @@ from foliage_tools.pipeline.smax import sky_radiance
 from foliage_tools.pipeline.world import World, assemble, prototype_means
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.write import LayerEdits, stage_metadata, write_layer
+
+
+#: Per-leaf noise of the reference's E_scattered (relative RMS between two half-runs, scaled to the
+#: whole run) above which the leaves' values are mostly noise: the run warns, never silently
+#: under-sampled (DESIGN.md section 4). On the example tree (1500 leaves) 20k paths give 0.87, the
+#: default 1M paths 0.25.
+NOISE_WARN = 0.5
+
+#: The noise the warning's suggested --paths aim at. The noise falls at best as 1/sqrt(paths); from
+#: a very noisy run it falls slower (many leaves were never hit), so the suggestion is a lower bound.
+NOISE_TARGET = 0.2
+
+
+def noise_warnings(paths: int, noise_rel: float, flag: str = "--paths") -> list[str]:
+    """A warning when the reference's per-leaf E_scattered noise exceeds :data:`NOISE_WARN`, with the paths that would fix it."""
+    if not (noise_rel > NOISE_WARN):
+        return []
+    need = int(math.ceil(paths * (noise_rel / NOISE_TARGET) ** 2 / 1e5) * 1e5)
+    return [
+        f"the reference is under-sampled: its per-leaf E_scattered noise is {noise_rel:.2f} (relative RMS between two "
+        f"half-runs), so leaf by leaf it is mostly noise. Raise {flag}: the noise falls at best as 1/sqrt(paths), so "
+        f"reaching {NOISE_TARGET} takes at least {need:,}."
+    ]
 
 
 @dataclass(frozen=True)
@@ -104,6 +128,7 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
         edits.primvars += leaf_primvar_edits(proto, "foliage:ref:scattered", scattered[i], type="color3f")
     if res.truncated:
         report.warnings.append(f"{res.truncated} path(s) were abandoned after {reference.ReferenceParams().max_events} events.")
+    report.warnings.extend(noise_warnings(int(res.paths), float(res.noise_rel)))
     progress.step(f"writing {out}")
     report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
     report.stats = {

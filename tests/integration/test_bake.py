@@ -32,3 +32,49 @@ def test_bake_into_a_file_path_is_refused(tmp_path):
     f.write_text("x")
     r = foliage("bake", EXAMPLE, "-o", f)
     assert r.returncode == 2
+
+
+class _InterruptAt:
+    """A progress sink that raises KeyboardInterrupt (Ctrl-C) at the first step whose message contains ``word``."""
+
+    def __init__(self, word: str):
+        self.word = word
+        self.seen = []
+
+    def step(self, message: str, total=None) -> None:
+        self.seen.append(message)
+        if self.word in message:
+            raise KeyboardInterrupt
+
+    def advance(self, n: int = 1) -> None:
+        pass
+
+
+def test_an_interrupted_bake_leaves_no_output_and_keeps_an_existing_outdir_as_it_was(tmp_path):
+    import pytest
+
+    optics = parse_leaf_optics(None)
+    # interrupted in the LB stage: density, smax and spp had finished
+    progress = _InterruptAt("lattice")
+    with pytest.raises(KeyboardInterrupt):
+        run_bake(EXAMPLE, tmp_path / "new" / "out", BakeParams(optics=optics, resolution=8), progress=progress)
+    assert any("lattice" in m for m in progress.seen)
+    assert list(tmp_path.iterdir()) == []  # neither OUTDIR, nor the directory made for it, nor a temporary
+    existing = tmp_path / "old"
+    existing.mkdir()
+    (existing / "notes.txt").write_text("keep me")
+    with pytest.raises(KeyboardInterrupt):
+        run_bake(EXAMPLE, existing, BakeParams(optics=optics, resolution=8), progress=_InterruptAt("lattice"))
+    assert [f.name for f in tmp_path.iterdir()] == ["old"] and [f.name for f in existing.iterdir()] == ["notes.txt"]
+
+
+def test_bake_with_bad_input_or_an_unwritable_place_exits_2_and_creates_nothing(tmp_path):
+    from tests.conftest import cards_mesh, write_mesh_stage
+
+    wood = write_mesh_stage(tmp_path / "wood.usda", {"Trunk": {**cards_mesh([(0, 0, 0)]), "isLeaf": False}})
+    r = foliage("bake", wood, "-o", tmp_path / "a" / "b", "--resolution", "8")
+    assert r.returncode == 2 and "no leaves" in r.stderr
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["wood.usda"]
+    # /proc refuses new files and directories even to root
+    r = foliage("bake", EXAMPLE, "-o", "/proc/foliage-bake", "--resolution", "8")
+    assert r.returncode == 2 and "/proc" in r.stderr, r.stderr

@@ -74,3 +74,40 @@ def test_bench_reports_every_method_with_errors_beside_the_reference_noise(tmp_p
 def test_reference_rejects_too_few_paths(tmp_path):
     with pytest.raises(Exception, match="paths"):
         ReferenceParams(optics=parse_leaf_optics(None), paths=1)
+
+
+def test_an_under_sampled_reference_warns_and_says_how_many_paths_would_do():
+    from foliage_tools.pipeline.reference import NOISE_TARGET, NOISE_WARN, noise_warnings
+
+    (w,) = noise_warnings(20000, 0.87)
+    # 1/sqrt(paths) scaling from 0.87 to the target: at least 20k x (0.87 / 0.2)^2 = 378k paths
+    assert "under-sampled" in w and "--paths" in w and "378,450" not in w and "400,000" in w
+    assert noise_warnings(20000, 0.87, "--reference-paths")[0].count("--reference-paths") == 1
+    assert noise_warnings(1_000_000, 0.25) == [] and noise_warnings(10, NOISE_WARN) == []
+    assert NOISE_TARGET < NOISE_WARN
+
+
+def test_reference_and_bench_do_not_hide_a_noisy_reference(tmp_path):
+    r = foliage("reference", EXAMPLE, "-o", tmp_path / "r.usda", "--paths", "20000", "--json")
+    report = json.loads(r.stdout)
+    assert r.returncode == 0 and report["stats"]["noise_rel"] > 0.5
+    assert any("under-sampled" in w for w in report["warnings"])
+    r = foliage("bench", EXAMPLE, "--paths", "20000", "--methods", "smax", "--json")
+    warnings = json.loads(r.stdout)["warnings"]
+    assert any("under-sampled" in w for w in warnings)
+    assert any("smax" in w and "twice the reference's own noise" in w for w in warnings)
+
+
+def test_bench_refuses_a_bad_plot_path_before_tracing(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    import foliage_tools.pipeline.bench as bench_module
+    from foliage_tools.cli.main import cli
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("the benchmark ran before the plot path was checked")
+
+    monkeypatch.setattr(bench_module, "run_bench", must_not_run)
+    for plot, message in ((tmp_path / "no" / "b.png", "does not exist"), (tmp_path / "b.jpeg2", "matplotlib cannot write jpeg2")):
+        result = CliRunner().invoke(cli, ["bench", str(EXAMPLE), "--plot", str(plot)])
+        assert result.exit_code == 2 and message in result.output, result.output
