@@ -200,9 +200,12 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed
               help="auto: plain iteration, switching to BiCGSTAB when convergence is slow (low absorption).")
 @click.option("--absorption-scale", type=float, default=1.0, show_default=True,
               help="sigma_a = scale x (1 - r - t). 1 = physical leaf; geist2008 used 0.125.")
+@click.option("--max-sweeps", type=click.IntRange(min=1), default=20000, show_default=True,
+              help="Stop after this many lattice sweeps. Short of --tolerance the layer is still written, and the "
+                   "command exits 1 (a bake that failed its accuracy check).")
 @bake_options
 @common_options
-def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, solver: str, absorption_scale: float, sun: str | None,
+def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, solver: str, absorption_scale: float, max_sweeps: int, sun: str | None,
        leaf_optics: str | None, wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
     """Lattice-Boltzmann light bake (geist2008, steele2010) per unique prototype.
 
@@ -228,6 +231,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, bases=bases, tolerance=tolerance, solver=solver, absorption_scale=absorption_scale,
+            max_sweeps=max_sweeps,
         )
 
         def render(report) -> None:

@@ -21,7 +21,7 @@ from rich.markup import escape
 
 from foliage_tools import __version__
 from foliage_tools.cli import console
-from foliage_tools.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, FoliageError
+from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERNAL, EXIT_INTERRUPTED, FoliageError
 
 SCENE = click.argument("scene", type=click.Path(path_type=Path, dir_okay=True))
 OUT = click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), help="Output USD layer (.usda/.usdc); grids go beside it as .vdb files.")
@@ -158,11 +158,15 @@ def execute(stage: Callable, *, as_json: bool, quiet: bool, render: Callable | N
         report = stage(progress)
     if as_json:
         console.print_json(report.as_json())
-        return 0
-    console.warn(report.warnings, quiet)
-    if not quiet:
-        if render is not None:
-            render(report)
-        for o in report.outputs:
-            console.stdout.print(f"wrote {o}", highlight=False, soft_wrap=True)
+    else:
+        console.warn([w for w in report.warnings if w not in report.findings], quiet)
+        if not quiet:
+            if render is not None:
+                render(report)
+            for o in report.outputs:
+                console.stdout.print(f"wrote {o}", highlight=False, soft_wrap=True)
+    if report.findings:  # the outputs are written, but the bake failed its own accuracy check (DESIGN.md section 3)
+        for f in report.findings:
+            console.stderr.print(f"[red]accuracy check failed:[/red] {escape(f)}", highlight=False, markup=True, soft_wrap=True)
+        return EXIT_FINDINGS
     return 0

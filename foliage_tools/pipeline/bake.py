@@ -72,6 +72,7 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     for name, r in stages.items():
         report.outputs += r.outputs
         report.warnings += [f"{name}: {w}" for w in r.warnings]
+        report.findings += [f"{name}: {w}" for w in r.findings]
     report.stats = {
         "result": str(final),
         "stages": {name: {"seconds": r.seconds, "outputs": r.outputs} for name, r in stages.items()},

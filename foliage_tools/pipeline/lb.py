@@ -60,6 +60,8 @@ class LBBakeParams:
     """``auto``, ``iterate``, ``bicgstab`` or ``extrapolate`` (lighting.lb)."""
     absorption_scale: float = 1.0
     """σa = scale × (1 − r − t): 1 is the physical leaf; geist2008 used 0.125 (sec. 3)."""
+    max_sweeps: int = 20000
+    """Sweeps after which the solver stops short of ``tolerance`` (the bake then fails its accuracy check: exit 1)."""
 
     def __post_init__(self) -> None:
         if self.bases not in BASES:
@@ -72,6 +74,8 @@ class LBBakeParams:
             raise UsageError(f"--solver must be one of {', '.join(lb.SOLVERS)}, got {self.solver!r}.")
         if not (0 < self.absorption_scale <= 1):
             raise UsageError(f"--absorption-scale must be in (0, 1], got {self.absorption_scale}.")
+        if self.max_sweeps < 1:
+            raise UsageError(f"--max-sweeps must be at least 1, got {self.max_sweeps}.")
 
 
 def sample_trilinear(field: np.ndarray, grid: GridSpec, points: np.ndarray) -> np.ndarray:
@@ -137,7 +141,7 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
             "Lower --resolution (memory falls with its cube), or use --bases sun (1/18 of --bases all); "
             "`foliage plan` shows the memory before a bake."
         )
-    lbp = lb.LBParams(tolerance=params.tolerance, solver=params.solver)
+    lbp = lb.LBParams(tolerance=params.tolerance, solver=params.solver, max_sweeps=params.max_sweeps)
     res = lb.solve(problem, lbp)
     total = res.energy_density
     if params.bases == "all":
@@ -219,8 +223,14 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         edits.primvars += _vertex_indirect(proto, bake)
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:direct", bake.e_direct, type="color3f")
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:scattered", bake.e_scattered, type="color3f")
-        if not r.converged:
-            report.warnings.append(f"prototype <{proto.path}>: LB stopped at residual {r.residual:.2e} above --tolerance {params.tolerance:g}.")
+        if not r.converged:  # DESIGN.md section 3: a bake that failed its own accuracy check exits 1
+            finding = (
+                f"prototype <{proto.path}>: LB stopped after {int(r.iterations)} sweeps at residual {r.residual:.2e}, above "
+                f"--tolerance {params.tolerance:g}. The layer was written with that residual in its metadata; raise "
+                f"--max-sweeps, loosen --tolerance or try --solver bicgstab."
+            )
+            report.warnings.append(finding)
+            report.findings.append(finding)
         protos.append({
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),

@@ -36,6 +36,8 @@ class Report:
     outputs: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     stats: dict[str, Any] = field(default_factory=dict)
+    findings: list[str] = field(default_factory=list)
+    """Failed accuracy checks of the bake (also in ``warnings``): the outputs were written, the exit code is 1."""
     started: float = field(default_factory=time.perf_counter)
     seconds: float = 0.0
 

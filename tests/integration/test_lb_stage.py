@@ -74,6 +74,25 @@ def test_bad_lb_options_are_usage_errors(tmp_path):
         LBBakeParams(optics=parse_leaf_optics(None), absorption_scale=0)
 
 
+def test_an_lb_bake_short_of_its_tolerance_is_written_and_exits_1(tmp_path):
+    import json
+
+    from pxr import Usd
+
+    out = tmp_path / "o.usda"
+    r = foliage("lb", EXAMPLE, "-o", out, "--resolution", "8", "--solver", "iterate", "--max-sweeps", "2", "--json")
+    assert r.returncode == 1, r.stderr
+    assert "accuracy check failed" in r.stderr and "--max-sweeps" in r.stderr
+    report = json.loads(r.stdout)
+    assert report["stats"]["iterations"] == 2 and report["stats"]["residual"] > 1e-5
+    assert any("LB stopped after 2 sweeps" in w for w in report["warnings"])
+    # written, with the residual it stopped at in its metadata
+    stage = Usd.Stage.Open(str(out))
+    vol = stage.GetPrimAtPath("/Tree/FoliageLighting")
+    assert vol.GetAttribute("foliage:residual").Get() == pytest.approx(report["stats"]["residual"], rel=1e-6)
+    assert vol.GetAttribute("foliage:iterations").Get() == 2
+
+
 def test_a_bake_that_cannot_fit_in_memory_stops_before_solving_and_writes_nothing(tmp_path, monkeypatch):
     from foliage_tools.errors import UsageError
     from foliage_tools.pipeline import lb as lb_stage
