@@ -124,7 +124,7 @@ def reference(scene: Path, out: Path, paths: int, seed: int, workers: int | None
 
 @click.command()
 @SCENE
-@click.option("--methods", "methods_", default=None, metavar="NAME,...", help="Methods to run [default: every available one].")
+@click.option("--methods", "methods_", default=None, metavar="NAME,...", help="Methods to run, by name or family (lb = lb-32 and lb-64) [default: every available one].")
 @click.option("--plot", type=click.Path(path_type=Path, dir_okay=False), default=None, help="Write a log-log speed-vs-error plot (PNG/SVG/PDF).")
 @click.option("--paths", type=click.IntRange(min=2), default=4_000_000, show_default=True, help="Reference Monte Carlo sun paths.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Reference seed.")

@@ -55,11 +55,17 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
     report, scene, sun = begin_bake("bench", path, None, params.sun, progress)
     all_methods = methods()
     names = [m.name for m in all_methods]
+
+    def matches(request: str, name: str) -> bool:  # a family name selects its variants: lb -> lb-32, lb-64
+        return name == request or name.startswith(request + "-")
+
     if params.methods:
-        unknown = [n for n in params.methods if n not in names]
+        unknown = [n for n in params.methods if not any(matches(n, name) for name in names)]
         if unknown:
-            raise UsageError(f"--methods: unknown method(s) {', '.join(unknown)}; known: {', '.join(names)}.")
-    selected = [m for m in all_methods if not params.methods or m.name in params.methods]
+            families = sorted({n.split("-")[0] for n in names if "-" in n})
+            raise UsageError(f"--methods: unknown method(s) {', '.join(unknown)}; known: {', '.join(names)} "
+                             f"(or a family: {', '.join(families)}).")
+    selected = [m for m in all_methods if not params.methods or any(matches(r, m.name) for r in params.methods)]
 
     t0 = time.perf_counter()
     ref = bake_reference(scene, sun, ReferenceParams(optics=params.optics, paths=params.paths, seed=params.seed), progress)
