@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from foliage_tools.scene.model import Prototype
-from foliage_tools.scene.write import PrimvarEdit
+from foliage_tools.scene.write import AttributeEdit, PrimvarEdit
 
 
 def per_face(proto: Prototype, mesh_index: int, per_leaf: np.ndarray) -> np.ndarray:
@@ -41,3 +41,17 @@ def native_instance_warning(proto: Prototype, what: str) -> str:
         f"prototype <{proto.path}> is a native instance: {what} cannot be authored on its meshes "
         "(they live in a referenced layer); make the prototype editable (not instanceable) to store them."
     )
+
+
+def baked_sun_attribute(proto: Prototype, method: str, sun_local: np.ndarray) -> list[AttributeEdit]:
+    """``foliage:<method>:sunDirection`` on the prototype prim: the sun the per-leaf light was baked for.
+
+    A unit vector toward the sun in the prototype's own frame (as seen by its
+    first instance, like the bake). The previewer compares it with the sun it
+    draws under and warns when they differ: primvar-baked scattered light holds
+    one sun only. Empty for native-instance prototypes, like the primvars.
+    """
+    if not proto.editable:
+        return []
+    d = tuple(float(v) for v in sun_local)
+    return [AttributeEdit(prim=proto.path, api=None, values={f"foliage:{method}:sunDirection": (d, "Vector3f")})]

@@ -407,6 +407,54 @@ def choose_lighting(scene: Scene, sun: tuple[float, float] | None, warnings: lis
     return SunAndSky(Lighting(direction, irradiance, sky), az, el, source, sky_source)
 
 
+#: The ``foliage:<key>:sunDirection`` a method's bake records (``leafdata.baked_sun_attribute``).
+_BAKED_SUN_KEYS = {"lb": "lb", "spp": "spp", "reference": "ref"}
+
+#: Angle (degrees) between the baked and the drawn sun above which the preview warns.
+BAKED_SUN_TOLERANCE_DEG = 1.0
+
+
+def baked_sun_mismatches(path: Path, scene: Scene, methods: tuple[str, ...], sun_direction: np.ndarray) -> list[str]:
+    """Warnings for methods whose per-leaf light was baked for another sun than the one drawn.
+
+    Primvar-baked scattered light (lb without relighting bases, spp, the
+    reference) holds the sun of its bake only; drawn under another ``--sun`` it
+    is silently the wrong light. Each bake records its sun on the prototype
+    prim (``foliage:<method>:sunDirection``, prototype frame); bakes without it
+    (older layers) are not checked.
+    """
+    keys = [(m, _BAKED_SUN_KEYS[m]) for m in methods if m in _BAKED_SUN_KEYS]
+    if not keys:
+        return []
+    from pxr import Usd
+
+    from foliage_tools.pipeline.stage import first_instance_sun
+
+    stage = Usd.Stage.Open(str(path))
+    out = []
+    for i, proto in enumerate(scene.prototypes):
+        prim = stage.GetPrimAtPath(proto.path)
+        if not prim:
+            continue
+        drawn = first_instance_sun(scene, i, sun_direction)
+        for method, key in keys:
+            attr = prim.GetAttribute(f"foliage:{key}:sunDirection")
+            if not attr or not attr.HasAuthoredValue():
+                continue
+            baked = np.asarray(attr.Get(), dtype=np.float64)
+            norm = float(np.linalg.norm(baked))
+            if not (norm > 0 and np.all(np.isfinite(baked))):
+                continue
+            angle = math.degrees(math.acos(min(1.0, max(-1.0, float(baked @ drawn) / norm))))
+            if angle > BAKED_SUN_TOLERANCE_DEG:
+                fix = "leave out --sun to draw the bake's sun, or re-bake with this --sun"
+                if method == "lb":
+                    fix += " (or `foliage lb --bases all`, which relights for any sun)"
+                out.append(f"{path}: the {method} light of <{proto.path}> was baked for a sun {angle:.0f}° away from the one "
+                           f"drawn, and is drawn as baked; {fix}.")
+    return out
+
+
 # -- output ----------------------------------------------------------------------------
 
 
@@ -531,6 +579,8 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
     ground = Ground.under(bounds, up) if params.ground else None
     clip_bounds = bounds if ground is None else np.stack([np.minimum(bounds[0], ground.bounds(up)[0]), np.maximum(bounds[1], ground.bounds(up)[1])])
     light = choose_lighting(scene, params.sun, report.warnings)
+    from_primvars = tuple(m for m in methods if m in ("spp", "reference") or (m == "lb" and not lb_bases))
+    report.warnings.extend(baked_sun_mismatches(Path(path), scene, from_primvars, light.lighting.sun_direction))
 
     usd_cam = None
     if params.camera is not None:

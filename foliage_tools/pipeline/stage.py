@@ -34,11 +34,15 @@ def sun_in_prototype(scene: Scene, index: int, sun: Sun, warnings: list[str]) ->
     from the first share its lighting: that is reported as a warning.
     """
     insts = scene.instances_of(index)
-    if not insts:
-        return sun.direction
     if len({tuple(np.round(to_prototype_space(sun.direction, i.transform), 6)) for i in insts}) > 1:
         warnings.append(
             f"prototype <{scene.prototypes[index].path}> has {len(insts)} instances at several orientations; its per-leaf "
             f"lighting uses the sun as seen by <{insts[0].path}>."
         )
-    return to_prototype_space(sun.direction, insts[0].transform)
+    return first_instance_sun(scene, index, sun.direction)
+
+
+def first_instance_sun(scene: Scene, index: int, direction: np.ndarray) -> np.ndarray:
+    """A world direction toward the sun in prototype ``index``'s frame, as its first instance sees it."""
+    insts = scene.instances_of(index)
+    return to_prototype_space(direction, insts[0].transform) if insts else np.asarray(direction, dtype=np.float64)

@@ -104,6 +104,29 @@ def test_a_bake_that_cannot_fit_in_memory_stops_before_solving_and_writes_nothin
     assert list(tmp_path.iterdir()) == []
 
 
+def test_primvar_light_records_its_sun_and_the_preview_warns_when_drawn_under_another(tmp_path):
+    import math
+
+    from pxr import Usd
+
+    from foliage_tools.geometry.sun import direction_from_angles
+    from foliage_tools.pipeline.preview import baked_sun_mismatches
+    from foliage_tools.scene.read import read_scene
+
+    out = tmp_path / "l.usda"
+    run_lb(EXAMPLE, out, LBBakeParams(optics=parse_leaf_optics(None), resolution=8, sun=(120.0, 35.0)))
+    stage = Usd.Stage.Open(str(out))  # keep the stage alive while its prim is used
+    baked = stage.GetPrimAtPath("/Tree").GetAttribute("foliage:lb:sunDirection").Get()
+    np.testing.assert_allclose(np.asarray(baked), direction_from_angles(120.0, 35.0, "Z"), atol=1e-6)
+    scene, _ = read_scene(out)
+    same = direction_from_angles(120.0, 35.0, scene.up_axis)
+    assert baked_sun_mismatches(out, scene, ("lb", "spp"), same) == []
+    # 5 degrees of elevation apart: warned, with the angle; the spp method has no bake here, so no check
+    (w,) = baked_sun_mismatches(out, scene, ("lb", "spp"), direction_from_angles(120.0, 40.0, scene.up_axis))
+    assert "lb light of </Tree>" in w and "5°" in w and "--bases all" in w
+    assert math.isclose(float(np.linalg.norm(baked)), 1.0, rel_tol=1e-6)
+
+
 def test_preview_relights_the_bases_and_reproduces_the_baked_sun(tmp_path):
     """The preview's lb bases (grids + recomputed never-scattered part), blended for the bake's own sun
     in the prototype frame, give the lbIndirect the bake wrote at every leaf vertex."""
