@@ -204,6 +204,20 @@ def _volume_grids(stage: Usd.Stage, path: str) -> Iterator[Finding]:
             yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: grid {name!r} in @{ap.path}@ holds NaN or infinite values.", str(prim.GetPath()))
 
 
+@rule("leaf-optics-attributes", "foliage:leaf:reflectance / transmittance are reserved and not read yet (the bake's --leaf-optics applies).")
+def _leaf_optics_attributes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in _meshes(stage):
+        authored = [n for n in ("foliage:leaf:reflectance", "foliage:leaf:transmittance")
+                    if prim.GetAttribute(n) and prim.GetAttribute(n).HasAuthoredValue()]
+        if authored:
+            yield Finding(
+                WARNING, "leaf-optics-attributes",
+                f"<{prim.GetPath()}> authors {' and '.join(authored)}, which foliage-tools does not read yet: the bakes use "
+                "--leaf-optics for every leaf. Pass its values with --leaf-optics rR,rG,rB,tR,tG,tB.",
+                str(prim.GetPath()),
+            )
+
+
 def _usd_findings(stage: Usd.Stage) -> Iterator[Finding]:
     reg = UsdValidation.ValidationRegistry()
     names = [n for n in USD_VALIDATORS if reg.HasValidator(n)]

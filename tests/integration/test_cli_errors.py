@@ -82,6 +82,19 @@ def test_degenerate_triangles_warn_and_fail_only_strict(tmp_path):
     assert any("degenerate" in w for w in report["warnings"])
 
 
+def test_validate_warns_that_the_reserved_leaf_optics_attributes_are_not_read(tmp_path):
+    from pxr import Gf, Usd
+
+    path = write_mesh_stage(tmp_path / "t.usda", {"Leaves": {**cards_mesh([(0, 0, 0)]), "api": True}})
+    assert "leaf-optics-attributes" not in foliage("validate", path, "--strict").stdout
+    stage = Usd.Stage.Open(str(path))
+    stage.GetPrimAtPath("/Tree/Leaves").GetAttribute("foliage:leaf:reflectance").Set(Gf.Vec3f(0.1, 0.2, 0.1))
+    stage.GetRootLayer().Save()
+    r = foliage("validate", path)
+    assert r.returncode == 0 and "leaf-optics-attributes" in r.stdout and "--leaf-optics" in r.stdout
+    assert foliage("validate", path, "--strict").returncode == 1
+
+
 def test_usage_errors_exit_2(tmp_path, simple_tree):
     r = foliage("density", simple_tree, "-o", tmp_path / "o.usda", "--voxel-size", "0.1", "--resolution", "8")
     assert r.returncode == 2 and "--voxel-size" in r.stderr and "--resolution" in r.stderr
