@@ -99,14 +99,16 @@ def _shell_means(scene, values):
     return values[outer].mean(), values[inner].mean(), dist
 
 
-@pytest.mark.parametrize("which,margin", [("example", 0.03), ("oak", 0.01)])
+@pytest.mark.parametrize("which,margin", [("example", 0.002), ("oak", 0.01)])
 def test_gfactor_is_lower_in_the_outer_shell_of_the_crown(which, margin, request):
     path = EXAMPLE if which == "example" else request.getfixturevalue("oak")
     scene, _, bake = _bake(path, "grid")
     g = bake.result.gfactor
     assert np.all((g >= 0) & (g <= 1))
     outer, inner, _ = _shell_means(scene, g)
-    # measured: example 0.619 vs 0.673, oak 0.700 vs 0.724
+    # measured: example 0.670 vs 0.675, oak 0.705 vs 0.724. Before the own-leaf depths snapped rounding
+    # residues to 0 (lighting.depth), 145 example leaves on the crown's sun side took G from a ratio of
+    # rounding errors and the example measured 0.619 vs 0.673: most of that gap was the artifact
     assert outer < inner - margin
 
 

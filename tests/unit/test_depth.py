@@ -228,6 +228,31 @@ def test_own_leaf_removal_equals_the_grid_built_without_that_leaf():
             np.testing.assert_allclose(getattr(got, name)[k], getattr(ref, name)[0], rtol=1e-12, atol=1e-12)
 
 
+def test_own_leaf_removal_leaves_exact_zeros_where_no_other_leaf_is_even_from_a_float32_grid():
+    """Where only the own leaf lies on a ray, its depth is 0, not a rounding residue.
+
+    A grid stored as float32 and read back (an earlier stage's density, reused)
+    differs from the exact pieces by ~1e-7; the residue would feed the G-factor's
+    0/0 at zero depth (F jumps from 1 at L = 0 to h/L) with the ratio of two
+    rounding errors.
+    """
+    from foliage_tools.geometry.voxelize import area_per_voxel, grid_for_bounds
+
+    tri, ids, centres = leaf_cards(5, 40, 0.2)
+    grid = grid_for_bounds(tri.reshape(-1, 3).min(0), tri.reshape(-1, 3).max(0), resolution=12)
+    rho = area_per_voxel(tri, grid) / grid.voxel_volume
+    sun = np.array([0.3, 0.2, 1.0])
+    dirs = np.random.default_rng(6).normal(size=(6, 3))
+    kw = dict(sun_direction=sun, directions=dirs, points=centres, leaf_triangles=tri, leaf_of_triangle=ids)
+    exact = dp.depth_samples(rho, grid, **kw)
+    stored = dp.depth_samples(rho.astype(np.float32).astype(np.float64), grid, **kw)
+    for name in ("sun_depth", "sample_depth"):
+        e, s = getattr(exact, name), getattr(stored, name)
+        assert np.any(e == 0.0)  # leaves with no other leaf toward some direction
+        np.testing.assert_array_equal(s == 0.0, e == 0.0)
+        np.testing.assert_allclose(s, e, rtol=1e-5, atol=1e-6 * float(e.max()))  # float32 rounding of the voxels
+
+
 def test_without_the_own_leaf_the_depth_at_leaf_centres_is_the_media_closed_form():
     """Leaves placed independently: from a leaf centre the *other* leaves are a uniform medium.
 
