@@ -39,6 +39,8 @@ class DensityResult:
     leaf_area_grid: float
     """Σ density × voxel volume (``area`` method): equals ``leaf_area_mesh`` up to round-off when the grid holds all leaves."""
     seconds: float
+    source: str = "computed"
+    """``computed`` (voxelized here) or ``input`` (an earlier ``density`` stage's grids, read from the input)."""
 
 
 def density_grid(proto: Prototype, params: DensityParams) -> GridSpec:
@@ -73,6 +75,68 @@ def compute_density(proto: Prototype, params: DensityParams) -> DensityResult:
     mesh_area = float(proto.leaves.areas.sum())
     grid_area = float(density.sum() * grid.voxel_volume) if params.method == "area" else float("nan")
     return DensityResult(grid, density, wood_fraction, mesh_area, grid_area, time.perf_counter() - t0)
+
+
+def density_for_bake(path: Path | str, proto: Prototype, params: DensityParams, warnings: list[str]) -> DensityResult:
+    """The leaf-area density a bake stage needs: the input's own grids when an earlier stage wrote them, else voxelized.
+
+    DESIGN.md section 3: a bake reuses the density an earlier stage wrote. It
+    is reused when it lies on the lattice this stage asks for (same voxel
+    size, aligned origin, inside the grid: what ``foliage density`` writes
+    with the same --resolution or --voxel-size) and holds leaf-area density
+    (``--method area``). The grids are stored as float32, so a reused bake
+    differs from a fresh one by float32 round-off. Otherwise the density is
+    voxelized anew, with a warning that says why the input's was not used.
+    """
+    grid = density_grid(proto, params)
+    t0 = time.perf_counter()
+    found, why = _stored_density(Path(path), proto, grid)
+    if found is not None:
+        density, wood = found
+        return DensityResult(grid, density, wood, float(proto.leaves.areas.sum()), float(density.sum() * grid.voxel_volume),
+                             time.perf_counter() - t0, source="input")
+    if why:
+        warnings.append(f"prototype <{proto.path}>: the input's density grid was not reused ({why}); it was voxelized anew. "
+                        "Run `foliage density` with the same --resolution as this stage to reuse it.")
+    return compute_density(proto, params)
+
+
+def _stored_density(path: Path, proto: Prototype, grid: GridSpec) -> tuple[tuple[np.ndarray, np.ndarray] | None, str | None]:
+    """(density, wood fraction) on ``grid`` from the input's FoliageLighting volume; (None, reason) or (None, None) if it has none."""
+    from pxr import Usd, UsdVol
+
+    from foliage_tools.scene.vdb import read_grid
+
+    stage = Usd.Stage.Open(str(path))
+    volume = UsdVol.Volume(stage.GetPrimAtPath(volume_path(proto)))
+    if not volume:
+        return None, None
+    fields = volume.GetFieldPaths()
+    if "density" not in fields or "woodFraction" not in fields:
+        return None, None
+    arrays = []
+    for name in ("density", "woodFraction"):
+        asset = UsdVol.OpenVDBAsset(stage.GetPrimAtPath(fields[name]))
+        ap = asset.GetFilePathAttr().Get() if asset else None
+        if ap is None or not ap.resolvedPath:
+            return None, f"<{fields[name]}> names no readable .vdb"
+        stored = read_grid(Path(ap.resolvedPath), asset.GetFieldNameAttr().Get() or name)
+        if name == "density" and stored.metadata.get("densityMethod", "area") != "area":
+            return None, f"it holds the {stored.metadata.get('densityMethod')} heuristic, not leaf-area density"
+        if abs(stored.voxel_size - grid.voxel_size) > 1e-5 * grid.voxel_size:
+            return None, f"its voxel size is {stored.voxel_size:.4g}, this stage's lattice {grid.voxel_size:.4g}"
+        offset = (np.asarray(stored.origin) - np.asarray(grid.origin)) / grid.voxel_size
+        start = np.round(offset).astype(int)
+        end = start + np.asarray(stored.values.shape)
+        if np.any(np.abs(offset - start) > 1e-3) or np.any(start < 0) or np.any(end > np.asarray(grid.shape)):
+            if not np.any(stored.values):
+                arrays.append(np.zeros(grid.shape))  # an all-empty grid has no placement (e.g. no wood)
+                continue
+            return None, "it lies on another lattice"
+        full = np.zeros(grid.shape)
+        full[start[0]:end[0], start[1]:end[1], start[2]:end[2]] = stored.values
+        arrays.append(full)
+    return (arrays[0], arrays[1]), None
 
 
 def volume_path(proto: Prototype) -> str:

@@ -30,7 +30,7 @@ from foliage_tools.lighting import lb
 from foliage_tools.lighting.collision import Medium, brown, density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
-from foliage_tools.pipeline.density import compute_density, vdb_path, volume_path
+from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path, volume_path
 from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
@@ -120,10 +120,14 @@ class LBPrototypeBake:
     seconds: float
     medium: Medium
     """Green-node coefficients the lattice was solved with."""
+    density_source: str = "computed"
+    """Where the leaf-area density came from: ``computed`` or ``input`` (see ``density_for_bake``)."""
 
 
-def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: LBBakeParams) -> LBPrototypeBake:
-    dens = compute_density(proto, DensityParams(resolution=params.resolution, method="area"))
+def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: LBBakeParams,
+                   dens: DensityResult | None = None) -> LBPrototypeBake:
+    if dens is None:
+        dens = compute_density(proto, DensityParams(resolution=params.resolution, method="area"))
     grid = dens.grid
     rho = density_from_lad(dens.density, grid.voxel_size)
     medium = leaf_medium(params.optics, absorption_scale=params.absorption_scale)
@@ -160,7 +164,7 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
     cos = np.abs(proto.leaves.normals @ sun_local)
     e_direct = cos[:, None] * sample_trilinear(sun_un, grid, proto.leaves.centers)
     return LBPrototypeBake(index, grid, total, unscattered, sun_total, sun_un,
-                           e_direct, e_scattered, res, dens.seconds + res.seconds + t_un, medium)
+                           e_direct, e_scattered, res, dens.seconds + res.seconds + t_un, medium, dens.source)
 
 
 def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], progress: Progress) -> list[LBPrototypeBake]:
@@ -169,7 +173,8 @@ def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], p
     out = []
     for i, proto in baked:
         sun_local = sun_in_prototype(scene, i, sun, warnings)
-        out.append(bake_prototype(proto, i, sun_local, params))
+        dens = density_for_bake(scene.path, proto, DensityParams(resolution=params.resolution, method="area"), warnings)
+        out.append(bake_prototype(proto, i, sun_local, params, dens))
         progress.advance()
     return out
 
@@ -235,7 +240,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         protos.append({
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
-            "mlups": float(r.mlups), "seconds": bake.seconds,
+            "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source,
             "e_direct_mean": bake.e_direct.mean(axis=0).tolist(), "e_scattered_mean": bake.e_scattered.mean(axis=0).tolist(),
         })
     progress.step(f"writing {out}")

@@ -55,7 +55,7 @@ from foliage_tools.lighting import gfactor as gf
 from foliage_tools.lighting import raydepth as rd
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
-from foliage_tools.pipeline.density import DensityResult, compute_density, vdb_path, volume_path
+from foliage_tools.pipeline.density import DensityResult, density_for_bake, vdb_path, volume_path
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake, first_instance_sun
@@ -128,6 +128,8 @@ class SppBake:
     """Per instance of the prototype (``Scene.instances`` order), its own :class:`~foliage_tools.lighting.gfactor.SPPGResult`."""
     seconds_depths: float = 0.0
     """Wall time of the depths (own and neighbours) of all instances."""
+    density_source: str = "computed"
+    """Where the leaf-area density came from: ``computed`` or ``input`` (see ``density_for_bake``)."""
 
 
 def _is_similarity(m: np.ndarray) -> bool:
@@ -277,6 +279,7 @@ def bake_prototype(
         cells.sun_depth.reshape(shape), cells.sun_thickness.reshape(shape), g_cells.reshape(shape),
         tuple(dens.grid.origin), dens.grid.voxel_size, dens.seconds + time.perf_counter() - start,
         instances=len(placements), neighbours=n_neighbours, instance_results=tuple(results), seconds_depths=t_depths,
+        density_source=dens.source,
     )
 
 
@@ -298,7 +301,7 @@ def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], pro
     params = resolve_depth(scene, params)
     baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
     progress.step(f"SPP/SPPG for {len(baked)} prototype(s), {params.depth} depths", total=len(baked))
-    densities = {i: compute_density(p, DensityParams(resolution=params.resolution, method="area")) for i, p in baked}
+    densities = {i: density_for_bake(scene.path, p, DensityParams(resolution=params.resolution, method="area"), warnings) for i, p in baked}
     neighbours = _Neighbours(scene, densities, params, warnings) if len(scene.instances) > 1 else None
     out = []
     for i, proto in baked:
@@ -359,6 +362,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
             "path": proto.path, "leaves": proto.leaves.count, "cells": int(bake.grid_depth.size), "resolution": list(bake.grid_depth.shape),
             "gfactor_mean": float(np.mean(res.gfactor)), "seconds": bake.seconds,
             "seconds_depths": bake.seconds_depths, "instances": bake.instances, "neighbours": bake.neighbours,
+            "density": bake.density_source,
             "e_scattered_mean": {m: irr.scattered.mean(axis=0).tolist() for m, irr in methods.items()},
         })
     progress.step(f"writing {out}")

@@ -93,6 +93,28 @@ def test_an_lb_bake_short_of_its_tolerance_is_written_and_exits_1(tmp_path):
     assert vol.GetAttribute("foliage:iterations").Get() == 2
 
 
+def test_lb_reuses_the_density_an_earlier_stage_wrote_when_it_is_on_the_same_lattice(tmp_path):
+    from foliage_tools.params import DensityParams
+    from foliage_tools.pipeline.density import run_density
+
+    optics = parse_leaf_optics(None)
+    run_density(EXAMPLE, tmp_path / "d.usda", DensityParams(resolution=12))
+    fresh = run_lb(EXAMPLE, tmp_path / "a.usda", LBBakeParams(optics=optics, resolution=12))
+    reused = run_lb(tmp_path / "d.usda", tmp_path / "b.usda", LBBakeParams(optics=optics, resolution=12))
+    assert fresh.stats["prototypes"][0]["density"] == "computed" and reused.stats["prototypes"][0]["density"] == "input"
+    assert not any("not reused" in w for w in reused.warnings)
+    # the stored grid is float32: the same bake up to that round-off
+    np.testing.assert_allclose(reused.stats["prototypes"][0]["e_scattered_mean"], fresh.stats["prototypes"][0]["e_scattered_mean"], rtol=1e-5)
+    # another lattice: voxelized anew, and the warning says why and what to do
+    other = run_lb(tmp_path / "d.usda", tmp_path / "c.usda", LBBakeParams(optics=optics, resolution=10))
+    assert other.stats["prototypes"][0]["density"] == "computed"
+    assert any("not reused (its voxel size" in w and "--resolution" in w for w in other.warnings)
+    # the subgrid heuristic is not leaf-area density: never reused
+    run_density(EXAMPLE, tmp_path / "s.usda", DensityParams(resolution=12, method="subgrid"))
+    sub = run_lb(tmp_path / "s.usda", tmp_path / "e.usda", LBBakeParams(optics=optics, resolution=12))
+    assert sub.stats["prototypes"][0]["density"] == "computed" and any("subgrid" in w for w in sub.warnings)
+
+
 def test_a_bake_that_cannot_fit_in_memory_stops_before_solving_and_writes_nothing(tmp_path, monkeypatch):
     from foliage_tools.errors import UsageError
     from foliage_tools.pipeline import lb as lb_stage

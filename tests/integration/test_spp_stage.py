@@ -81,3 +81,16 @@ def test_depth_auto_counts_rays_on_small_scenes_and_integrates_the_grid_on_large
     monkeypatch.setattr(spp_mod, "AUTO_RAYS_MAX_LEAVES", 1000)
     assert spp_mod.resolve_depth(scene, params).depth == "grid"
     assert spp_mod.resolve_depth(scene, replace(params, depth="rays")).depth == "rays"  # explicit choice kept
+
+
+def test_spp_reuses_the_density_of_an_earlier_stage_on_the_same_lattice(tmp_path):
+    from foliage_tools.params import DensityParams
+    from foliage_tools.pipeline.density import run_density
+
+    run_density(EXAMPLE, tmp_path / "d.usda", DensityParams(resolution=12))
+    params = SppParams(optics=parse_leaf_optics(None), resolution=12, depth="grid")
+    fresh = run_spp(EXAMPLE, tmp_path / "a.usda", params)
+    reused = run_spp(tmp_path / "d.usda", tmp_path / "b.usda", params)
+    assert fresh.stats["prototypes"][0]["density"] == "computed" and reused.stats["prototypes"][0]["density"] == "input"
+    # float32 storage of the grid: the same G-factor up to that round-off
+    assert abs(reused.stats["prototypes"][0]["gfactor_mean"] - fresh.stats["prototypes"][0]["gfactor_mean"]) < 1e-5
