@@ -109,7 +109,12 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
                 AttributeEdit(
                     prim=proto.path,
                     api=ENVELOPE_API,
-                    values={"foliage:tau": (float(env.tau), "Float")},
+                    values={
+                        "foliage:tau": (float(env.tau), "Float"),
+                        "foliage:smax:path": (env.path, "Token"),
+                        "foliage:smax:seconds": (float(env.seconds + light.seconds), "Float"),
+                        "foliage:smax:version": (__version__, "String"),
+                    },
                 )
             )
         protos.append(

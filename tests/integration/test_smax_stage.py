@@ -48,6 +48,11 @@ def test_primvars_have_the_contracted_shapes(smax_out):
     # both faces summed, sun irradiance 1: E_direct of a leaf never exceeds 1
     assert np.all(direct >= 0) and np.all(direct <= 1 + 1e-6) and np.all(scattered >= 0)
     assert report.stats["tau"] == pytest.approx(tau, rel=1e-6)
+    # provenance beside tau (FoliageEnvelopeAPI): which path, how long, which version
+    tree = stage.GetPrimAtPath("/Tree")
+    assert tree.GetAttribute("foliage:smax:path").Get() == report.stats["path"]
+    assert tree.GetAttribute("foliage:smax:seconds").Get() > 0
+    assert tree.GetAttribute("foliage:smax:version").Get()
     assert foliage("validate", out).returncode == 0
 
 
