@@ -166,6 +166,17 @@ def write_layer(input_path: Path, out: Path, edits: LayerEdits, *, input_stage_m
     return [*vdb_files, out]
 
 
+def _apply_lighting_metadata(prim: Usd.Prim, attributes: dict) -> None:
+    prim.ApplyAPI(LIGHTING_API)
+    for name, value in attributes.items():
+        attr = prim.GetAttribute(name)
+        if not attr:
+            raise ValueError(f"{name} is not an attribute of {LIGHTING_API}")
+        if isinstance(value, (tuple, list)):  # e.g. int3 -> Gf.Vec3i
+            value = attr.GetTypeName().type.pythonClass(*value)
+        attr.Set(value)
+
+
 def _author(stage: Usd.Stage, edits: LayerEdits, out: Path) -> None:
     for pv in edits.primvars:
         prim = stage.OverridePrim(pv.prim)
@@ -184,6 +195,7 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path) -> None:
         hi = np.max([np.asarray(g.origin) + np.asarray(g.values.shape[:3]) * g.voxel_size for g in vol.grids], axis=0)
         volume.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))
         rel_file = _relative(vol.vdb_file, out.parent)
+        fields = []
         for g in vol.grids:
             field_path = Sdf.Path(vol.path).AppendChild(g.name)
             asset = UsdVol.OpenVDBAsset.Define(stage, field_path)
@@ -191,15 +203,11 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path) -> None:
             asset.CreateFieldNameAttr(g.name)
             asset.CreateFieldDataTypeAttr(g.data_type)
             volume.CreateFieldRelationship(g.name, field_path)
-        prim = volume.GetPrim()
-        prim.ApplyAPI(LIGHTING_API)
-        for name, value in vol.attributes.items():
-            attr = prim.GetAttribute(name)
-            if not attr:
-                raise ValueError(f"{name} is not an attribute of {LIGHTING_API}")
-            if isinstance(value, (tuple, list)):  # e.g. int3 -> Gf.Vec3i
-                value = attr.GetTypeName().type.pythonClass(*value)
-            attr.Set(value)
+            fields.append(asset.GetPrim())
+        # the volume's metadata is the last stage's (stages chained over one volume override it);
+        # each field carries the metadata of the stage that wrote its grid, which nothing overrides
+        for prim in [volume.GetPrim(), *fields]:
+            _apply_lighting_metadata(prim, vol.attributes)
     for edit in edits.attributes:
         prim = stage.OverridePrim(edit.prim)
         if edit.api:

@@ -115,6 +115,28 @@ def test_lb_reuses_the_density_an_earlier_stage_wrote_when_it_is_on_the_same_lat
     assert sub.stats["prototypes"][0]["density"] == "computed" and any("subgrid" in w for w in sub.warnings)
 
 
+def test_each_grid_field_keeps_the_metadata_of_the_stage_that_wrote_it(tmp_path):
+    from pxr import Usd
+
+    from foliage_tools.params import DensityParams
+    from foliage_tools.pipeline.density import run_density
+
+    run_density(EXAMPLE, tmp_path / "d.usda", DensityParams(voxel_size=0.2))
+    run_lb(tmp_path / "d.usda", tmp_path / "l.usda", LBBakeParams(optics=parse_leaf_optics(None), resolution=10))
+    stage = Usd.Stage.Open(str(tmp_path / "l.usda"))
+
+    def meta(path):
+        prim = stage.GetPrimAtPath(path)
+        return prim.GetAttribute("foliage:method").Get(), prim.GetAttribute("foliage:voxelSize").Get()
+
+    # the volume says what the last stage did; the density field still says how the density was made
+    assert meta("/Tree/FoliageLighting")[0] == "lb"
+    assert meta("/Tree/FoliageLighting/lbSun") == meta("/Tree/FoliageLighting")
+    method, voxel = meta("/Tree/FoliageLighting/density")
+    assert method == "density" and voxel == pytest.approx(0.2)
+    assert stage.GetPrimAtPath("/Tree/FoliageLighting/density").GetAttribute("foliage:densityMethod").Get() == "area"
+
+
 def test_a_bake_that_cannot_fit_in_memory_stops_before_solving_and_writes_nothing(tmp_path, monkeypatch):
     from foliage_tools.errors import UsageError
     from foliage_tools.pipeline import lb as lb_stage
