@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from foliage_tools import __version__
 from foliage_tools.errors import UsageError
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.lighting import reference
@@ -23,7 +24,7 @@ from foliage_tools.pipeline.stage import begin_bake, first_instance_sun
 from foliage_tools.pipeline.smax import sky_radiance
 from foliage_tools.pipeline.world import World, assemble, prototype_means
 from foliage_tools.scene.model import Scene
-from foliage_tools.scene.write import LayerEdits, stage_metadata, write_layer
+from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
 
 
 #: Per-leaf noise of the reference's E_scattered (relative RMS between two half-runs, scaled to the
@@ -127,6 +128,13 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
         edits.primvars += leaf_primvar_edits(proto, "foliage:ref:direct", direct[i], type="color3f")
         edits.primvars += leaf_primvar_edits(proto, "foliage:ref:scattered", scattered[i], type="color3f")
         edits.attributes += baked_sun_attribute(proto, "ref", first_instance_sun(scene, i, sun.direction))
+        if proto.editable:  # provenance: what the per-leaf values were traced with, and how noisy they are
+            edits.attributes.append(AttributeEdit(prim=proto.path, api=None, values={
+                "foliage:ref:paths": (int(res.paths), "Int64"),
+                "foliage:ref:seed": (int(params.seed), "Int64"),
+                "foliage:ref:noiseRel": (float(res.noise_rel), "Float"),
+                "foliage:ref:version": (__version__, "String"),
+            }))
     if res.truncated:
         report.warnings.append(f"{res.truncated} path(s) were abandoned after {reference.ReferenceParams().max_events} events.")
     report.warnings.extend(noise_warnings(int(res.paths), float(res.noise_rel)))

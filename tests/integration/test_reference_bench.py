@@ -42,6 +42,12 @@ def test_reference_is_deterministic_for_a_seed_and_writes_its_primvars(tmp_path)
     )
     assert 0 < a.stats["noise_rel"] < 1
     assert foliage("validate", tmp_path / "a.usda").returncode == 0
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(tmp_path / "a.usda"))
+    tree = stage.GetPrimAtPath("/Tree")
+    assert tree.GetAttribute("foliage:ref:paths").Get() == a.stats["paths"] and tree.GetAttribute("foliage:ref:seed").Get() == 3
+    assert tree.GetAttribute("foliage:ref:noiseRel").Get() == pytest.approx(a.stats["noise_rel"], rel=1e-6)
 
 
 def test_registry_lists_landed_and_planned_methods():
