@@ -52,20 +52,28 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise OutputError(f"@{outdir}@ exists and is not a directory; give a directory for the bake outputs.")
-    created = _make_parents(outdir.absolute().parent, outdir)
+    target = outdir.absolute()
+    created = _make_parents(target.parent, outdir)
     try:
-        work = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.tmp-", dir=outdir.absolute().parent))
+        work, staged = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent)), True
     except OSError as exc:
-        _remove_empty(created)
-        raise OutputError(f"@{outdir}@: cannot write in {outdir.absolute().parent} ({exc.strerror}); choose another output directory.") from None
+        if not (target.is_dir() and os.access(target, os.W_OK)):
+            _remove_empty(created)
+            raise OutputError(f"@{outdir}@: cannot write in {target.parent} ({exc.strerror}); choose another output directory.") from None
+        # OUTDIR exists and is writable but its parent is not: stage in OUTDIR itself (each file still atomic)
+        work, staged = target, False
+        report.warnings.append(f"{target.parent} is not writable, so the stages are written straight into {outdir}: "
+                               "a bake that fails part-way leaves the stages it finished there.")
     try:
         stages = _run_stages(path, work, params, progress)
-        moved = _move_into(work, outdir, path)
+        moved = _move_into(work, outdir, path) if staged else {f: f for f in work.iterdir()}
     except BaseException:
-        shutil.rmtree(work, ignore_errors=True)
+        if staged:
+            shutil.rmtree(work, ignore_errors=True)
         _remove_empty(created)
         raise
-    shutil.rmtree(work, ignore_errors=True)
+    if staged:
+        shutil.rmtree(work, ignore_errors=True)
     final = moved[work / f"{Path(path).stem}.lb.usda"]
     for r in stages.values():
         r.outputs = [str(moved.get(Path(o), o)) for o in r.outputs]
@@ -122,7 +130,7 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) 
 
 
 def _make_parents(parent: Path, outdir: Path) -> list[Path]:
-    """Create the missing directories above OUTDIR (deepest last); return them, to remove on failure."""
+    """Create the missing directories above OUTDIR; return them deepest first, to remove on failure."""
     missing = []
     d = parent
     while not d.exists():

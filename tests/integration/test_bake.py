@@ -78,3 +78,18 @@ def test_bake_with_bad_input_or_an_unwritable_place_exits_2_and_creates_nothing(
     # /proc refuses new files and directories even to root
     r = foliage("bake", EXAMPLE, "-o", "/proc/foliage-bake", "--resolution", "8")
     assert r.returncode == 2 and "/proc" in r.stderr, r.stderr
+
+
+def test_bake_stages_in_outdir_itself_when_its_parent_is_not_writable(tmp_path, monkeypatch):
+    import tempfile
+
+    def refuse(*args, **kwargs):  # root may write anywhere here: simulate a read-only parent
+        raise PermissionError(13, "Permission denied")
+
+    out = tmp_path / "out"
+    out.mkdir()
+    monkeypatch.setattr(tempfile, "mkdtemp", refuse)
+    report = run_bake(EXAMPLE, out, BakeParams(optics=parse_leaf_optics(None), resolution=8))
+    assert Path(report.stats["result"]) == out / "tree_small.lb.usda" and (out / "tree_small.lb.usda").exists()
+    assert any("not writable" in w for w in report.warnings)
+    assert foliage("validate", out / "tree_small.lb.usda").returncode == 0
