@@ -72,11 +72,14 @@ def setup_logging(verbose: int, quiet: bool) -> None:
 
 
 def _long_names(command: click.Command) -> dict[str, str]:
-    """Config keys of a command: each option's long names (without ``--``, dashes as underscores) -> its parameter."""
+    """Config keys of a command: each option's long names (without ``--``, dashes as underscores) -> its parameter.
+
+    The ``--no-x`` side of an on/off flag is not a key (``ground = false``, not ``no-ground = true``).
+    """
     names = {}
     for p in command.params:
         if isinstance(p, click.Option) and p.expose_value:
-            for opt in p.opts + p.secondary_opts:
+            for opt in p.opts:
                 if opt.startswith("--"):
                     names[opt[2:].replace("-", "_")] = p.name
     return names
