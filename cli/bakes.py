@@ -209,7 +209,8 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
        leaf_optics: str | None, wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
     """Lattice-Boltzmann light bake (geist2008, steele2010) per unique prototype.
 
-    Voxelizes each prototype's leaves (exact leaf-area density), solves the
+    Voxelizes each prototype's leaves (exact leaf-area density; an earlier
+    `foliage density` on the same --resolution is reused), solves the
     D3Q19 photon transport to a steady state (starting from the never-scattered
     light, computed exactly in one pass, which also separates direct from
     scattered light) and writes the photon energy density
@@ -328,7 +329,9 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
     SPPG, SPP and single-scattering irradiance. Writes grids sppGFactor,
     sppDepth, sppThickness to OUT.vdb, primvars:foliage:sppIrradiance and
     :gFactor (vertex) and per-leaf primvars:foliage:{spp,sppg,ss}:{direct,scattered}.
-    The paper's printed formulas were re-derived (see lighting/spp.py).
+    The leaf-area density of an earlier `foliage density` on the same
+    --resolution is reused. The paper's printed formulas were re-derived (see
+    lighting/spp.py).
 
     \b
     Example:
