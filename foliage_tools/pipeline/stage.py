@@ -18,7 +18,7 @@ def begin_bake(command: str, path: Path, out: Path | None, sun_flag, progress: P
     """A report, the scene (with leaves) and the sun; refuses a bad output before any work."""
     report = Report(command=command, inputs=[str(path)])
     if out is not None:
-        check_output_path(path, out)
+        check_output_path(path, out, writes_grids=command in ("lb", "spp"))
     progress.step(f"reading {path}")
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)

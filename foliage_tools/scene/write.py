@@ -10,6 +10,7 @@ files of a stage are written atomically together.
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -100,7 +101,7 @@ def _input_files(path: Path, _mtime: int) -> frozenset[Path]:
     return frozenset(files)
 
 
-def check_output_path(input_path: Path, out: Path, extra_outputs=()) -> None:
+def check_output_path(input_path: Path, out: Path, extra_outputs=(), *, writes_grids: bool = True) -> None:
     """Refuse outputs that would destroy the input or cannot be written.
 
     The input is every file its stage reads, not only the named layer: writing
@@ -109,7 +110,8 @@ def check_output_path(input_path: Path, out: Path, extra_outputs=()) -> None:
     the input, and could make the layer stack a cycle. ``extra_outputs``: the
     ``.vdb`` files the stage will write; before they are known, any ``.vdb`` the
     input uses that is named like this output's grids (``OUT.vdb``,
-    ``OUT.*.vdb``) is refused.
+    ``OUT.NN_name.vdb``) is refused when ``writes_grids`` (the stage will write
+    grids whose names are not known yet).
     """
     if out.suffix not in USD_EXTENSIONS:
         raise OutputError(f"@{out}@: the output must be a USD layer ({', '.join(USD_EXTENSIONS)}).")
@@ -118,8 +120,9 @@ def check_output_path(input_path: Path, out: Path, extra_outputs=()) -> None:
     used = input_files(input_path)
     target = out.resolve()
     grids = [Path(e).resolve() for e in extra_outputs]
-    grids += [f for f in used if f.suffix == ".vdb" and f.parent == target.parent
-              and (f.stem == target.stem or f.name.startswith(target.stem + "."))]
+    grid_name = re.compile(re.escape(target.stem) + r"(\.\d\d_[A-Za-z0-9_]+)?\.vdb")  # pipeline.density.vdb_path
+    if writes_grids:
+        grids += [f for f in used if f.parent == target.parent and grid_name.fullmatch(f.name)]
     for f in [target, *grids]:
         if f in used:
             what = "this output" if f == target else f"its grid file {f.name}"
@@ -145,7 +148,7 @@ def write_layer(input_path: Path, out: Path, edits: LayerEdits, *, input_stage_m
     input_path = Path(input_path)
     out = Path(out)
     vdb_files = [v.vdb_file for v in edits.volumes]
-    check_output_path(input_path, out, vdb_files)
+    check_output_path(input_path, out, vdb_files, writes_grids=False)  # the exact grid files, no prediction
     if len(set(vdb_files)) != len(vdb_files):
         raise ValueError("each volume needs its own .vdb file")
     with atomic_outputs([*vdb_files, out]) as temps:

@@ -124,6 +124,11 @@ def test_output_over_a_layer_or_grid_the_input_uses_is_refused(tmp_path, simple_
     assert {f.name: sha256(f) for f in tmp_path.iterdir() if f.is_file()} == before
     # an unrelated name still works
     assert foliage("density", b, "-o", tmp_path / "c.usda").returncode == 0
+    # no false alarms: t.usda's grid would be t.vdb, not the t.lb.vdb its input uses; smax writes no grids
+    assert foliage("density", simple_tree, "-o", tmp_path / "t.lb.usda").returncode == 0
+    assert foliage("density", tmp_path / "t.lb.usda", "-o", tmp_path / "t.usda").returncode == 0
+    r = foliage("smax", tmp_path / "t.usda", "-o", tmp_path / "t.lb.usdc")
+    assert r.returncode == 0, r.stderr
 
 
 def test_unwritable_output_dir_exits_2(simple_tree):
