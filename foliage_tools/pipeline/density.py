@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -103,11 +104,14 @@ def density_for_bake(path: Path | str, proto: Prototype, params: DensityParams, 
 
 def _stored_density(path: Path, proto: Prototype, grid: GridSpec) -> tuple[tuple[np.ndarray, np.ndarray] | None, str | None]:
     """(density, wood fraction) on ``grid`` from the input's FoliageLighting volume; (None, reason) or (None, None) if it has none."""
-    from pxr import Usd, UsdVol
+    from pxr import UsdVol
 
     from foliage_tools.scene.vdb import read_grid
+    from foliage_tools.scene.write import input_files
 
-    stage = Usd.Stage.Open(str(path))
+    if not any(f.suffix == ".vdb" for f in input_files(path)):
+        return None, None  # a raw asset: no grids to reuse, no need to compose the stage
+    stage = _stage_of(path)
     volume = UsdVol.Volume(stage.GetPrimAtPath(volume_path(proto)))
     if not volume:
         return None, None
@@ -137,6 +141,19 @@ def _stored_density(path: Path, proto: Prototype, grid: GridSpec) -> tuple[tuple
         full[start[0]:end[0], start[1]:end[1], start[2]:end[2]] = stored.values
         arrays.append(full)
     return (arrays[0], arrays[1]), None
+
+
+def _stage_of(path: Path):
+    """The composed input stage, opened once per file version for all its prototypes."""
+    p = Path(path).resolve()
+    return _open_stage(str(p), p.stat().st_mtime_ns)
+
+
+@lru_cache(maxsize=2)
+def _open_stage(path: str, _mtime: int):
+    from pxr import Usd
+
+    return Usd.Stage.Open(path)
 
 
 def volume_path(proto: Prototype) -> str:
