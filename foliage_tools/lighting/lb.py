@@ -1492,6 +1492,10 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
             f = out
             if res.max() < tol:
                 break
+        if not np.all(np.isfinite(res)):  # max_sweeps leaves no room for a BiCGSTAB step: plain sweeps
+            f, n, res, _ = _iterate(op, f, tol, max(params.max_sweeps - sweeps, 1), params.check_every, history, None)
+            sweeps += n
+            used.append("iterate")
     loop_seconds = time.perf_counter() - t_loop
     if not np.all(np.isfinite(res)):
         raise LBNumericalError(f"the lattice solve ended with a non-finite residual (solver {'+'.join(used)}); "

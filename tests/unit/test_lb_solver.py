@@ -415,6 +415,18 @@ def test_energy_balance_at_steady_state(rng):
     np.testing.assert_allclose(cons.inflow, cons.outflow, rtol=1e-5)
 
 
+@pytest.mark.parametrize("solver", ["iterate", "bicgstab", "auto", "extrapolate"])
+def test_a_converged_solve_meets_its_tolerance_and_a_stopped_one_says_so(rng, solver):
+    """The steady state is reached by a residual test (DESIGN.md section 4): converged means residual <= tolerance,
+    and a solve cut short by max_sweeps reports converged False with its residual above the tolerance."""
+    rho = _random_symmetric_density(rng, 8)
+    pb = LBProblem(rho, Medium((0.05,), (0.9,), (0.3,)), (sun_boundary((0.4, 0.1, 0.9)),))
+    r = solve(pb, LBParams(dtype="float64", tolerance=1e-6, solver=solver))
+    assert r.converged and 0.0 <= r.residual <= 1e-6
+    short = solve(pb, LBParams(dtype="float64", tolerance=1e-12, solver=solver, max_sweeps=3))
+    assert not short.converged and short.residual > 1e-12 and short.iterations <= 3
+
+
 def test_symmetric_density_under_zenith_sun_gives_symmetric_field(rng):
     rho = _random_symmetric_density(rng, 9)
     pb = LBProblem(rho, leaf_medium(), (sun_boundary((0, 0, 1)), ambient_boundary()))
