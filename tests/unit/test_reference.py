@@ -223,6 +223,24 @@ def test_two_facing_leaves_transmitted_light(gap):
     assert np.all(4 * sig < 0.015 * expected)
 
 
+def test_energy_is_conserved_at_unit_albedo():
+    """DESIGN.md section 4: energy conservation at albedo 1. Leaves with r + t = 1 per channel and
+    white wood absorb nothing: all the power launched escapes (channel sums to rounding, each
+    channel within the 4σ of test_energy_balance below), and no path is abandoned."""
+    rng = np.random.default_rng(7)
+    optics = LeafOptics((0.5, 0.7, 0.2), (0.5, 0.3, 0.8), 1.0)
+    inputs = crown(150, rng, optics=optics, sky=0.1)
+    n_sun, n_sky = 50_000, 20_000
+    res = solve(inputs, ReferenceParams(paths=n_sun, sky_paths=n_sky, seed=2))
+    assert np.all(res.absorbed == 0.0) and np.all(np.asarray(res.absorbed_wood) == 0.0)
+    assert res.truncated == 0
+    assert res.escaped.sum() == pytest.approx(res.incident.sum(), rel=1e-12)
+    sky_power = solve(inputs, ReferenceParams(paths=0, sky_paths=2, seed=0)).incident
+    w_sun = (res.incident - sky_power)[0] / n_sun
+    sigma = np.sqrt(n_sun * (1.5 * w_sun) ** 2 + n_sky * (0.5 * sky_power.sum() / n_sky) ** 2)
+    assert np.all(np.abs(res.escaped - res.incident) <= 4 * sigma), (res.escaped, res.incident, sigma)
+
+
 def test_energy_balance():
     # Every launched photon's power ends absorbed (leaf or wood) or escaped.
     # The solver preserves each path's channel-summed weight exactly, so the
