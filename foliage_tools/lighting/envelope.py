@@ -665,7 +665,9 @@ def _near_kernel(x, an, cell, start, order, lo, h, shape, r1, r2, inv_omega, max
     (changes ~1e-15 relative; all inputs are finite). Every unordered pair is
     visited once, from its lower sorted index p, and adds to both leaves:
     o(p, q) = A_q |N_q·d^|/(Ω r²) to p's bin b of d = q - p, o(q, p) =
-    A_p |N_p·d^|/(Ω r²) to q's bin 7 - b (the opposite octant); a leaf p in
+    A_p |N_p·d^|/(Ω r²) to q's bin of -d (the opposite octant 7 - b, except
+    where a component of d is exactly 0, as for coplanar or mirrored leaves:
+    the reference path counts it as not positive from both ends); a leaf p in
     the slab of cells i along the first axis has its partners q > p in slabs
     i..i+2. The leaves are dealt in chunks of 256, round robin, to ``lanes``
     parallel lanes, each adding into its own (L, 16) sums (8 bins of D, then
@@ -729,12 +731,15 @@ def _near_kernel(x, an, cell, start, order, lo, h, shape, r1, r2, inv_omega, max
                                 o_pq = min(abs(an[q, 0] * dx + an[q, 1] * dy + an[q, 2] * dz) * scale, max_occ)
                                 o_qp = min(abs(an[p, 0] * dx + an[p, 1] * dy + an[p, 2] * dz) * scale, max_occ)
                                 b = _octant(dx, dy, dz)
+                                # P's octant seen from q: 7 - b unless a component is exactly 0, which
+                                # counts as not positive from both ends (the reference path's rule)
+                                bq = _octant(-dx, -dy, -dz)
                                 t = min(max((r2 - r) * inv_span, 0.0), 1.0)
                                 w = t * t * (3.0 - 2.0 * t)
                                 acc[p, b] += w * _neg_log1m(o_pq)
                                 acc[p, 8 + b] += w * o_pq * r
-                                acc[q, 7 - b] += w * _neg_log1m(o_qp)
-                                acc[q, 15 - b] += w * o_qp * r
+                                acc[q, bq] += w * _neg_log1m(o_qp)
+                                acc[q, 8 + bq] += w * o_qp * r
         pairs[lane] = npairs
     for p in prange(n_leaves):  # back to the caller's leaf order
         for b in range(8):

@@ -190,6 +190,11 @@ def test_near_sums_match_all_ordered_pairs():
     x = rng.uniform(-1.0, 1.0, size=(n, 3))
     x[1] = x[0]  # duplicate
     x[3] = x[2] + 1e-4  # touching: o far above max_occlusion
+    # exact ties of a coordinate (coplanar or mirrored leaves of real assets): a zero component
+    # counts as not positive from both ends, so the two leaves' octants are not opposite (7 - b)
+    x[5] = x[4] + [0.05, 0.0, 0.0]
+    x[7] = x[6] + [0.0, 0.0, -0.04]
+    x[10:40, 1] = 0.3  # thirty leaves at one height
     nl = rng.normal(size=(n, 3))
     nl /= np.linalg.norm(nl, axis=1, keepdims=True)
     area = rng.uniform(0.001, 0.004, size=n)
