@@ -162,7 +162,7 @@ def execute(stage: Callable, *, as_json: bool, quiet: bool, render: Callable | N
     if as_json:
         console.print_json(report.as_json())
     else:
-        console.warn([w for w in report.warnings if w not in report.findings], quiet)
+        console.warn(report.warnings, quiet)
         if not quiet:
             if render is not None:
                 render(report)

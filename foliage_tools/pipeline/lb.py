@@ -230,13 +230,11 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:scattered", bake.e_scattered, type="color3f")
         edits.attributes += baked_sun_attribute(proto, "lb", first_instance_sun(scene, bake.index, sun.direction))
         if not r.converged:  # DESIGN.md section 3: a bake that failed its own accuracy check exits 1
-            finding = (
+            report.findings.append(
                 f"prototype <{proto.path}>: LB stopped after {int(r.iterations)} sweeps at residual {r.residual:.2e}, above "
                 f"--tolerance {params.tolerance:g}. The layer was written with that residual in its metadata; raise "
                 f"--max-sweeps, loosen --tolerance or try --solver bicgstab."
             )
-            report.warnings.append(finding)
-            report.findings.append(finding)
         protos.append({
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
