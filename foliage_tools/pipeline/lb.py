@@ -34,7 +34,7 @@ from foliage_tools.pipeline.density import DensityResult, compute_density, densi
 from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
-from foliage_tools.pipeline.stage import begin_bake, first_instance_sun, sun_in_prototype
+from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.vdb import Grid
 from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, stage_metadata, write_layer
@@ -228,7 +228,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         edits.primvars += _vertex_indirect(proto, bake)
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:direct", bake.e_direct, type="color3f")
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:scattered", bake.e_scattered, type="color3f")
-        edits.attributes += baked_sun_attribute(proto, "lb", first_instance_sun(scene, bake.index, sun.direction))
+        edits.attributes += baked_sun_attribute(scene, bake.index, "lb", sun.direction)
         if not r.converged:  # DESIGN.md section 3: a bake that failed its own accuracy check exits 1
             report.findings.append(
                 f"prototype <{proto.path}>: LB stopped after {int(r.iterations)} sweeps at residual {r.residual:.2e}, above "

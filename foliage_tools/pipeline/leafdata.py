@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from foliage_tools.scene.model import Prototype
+from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.write import AttributeEdit, PrimvarEdit
 
 
@@ -43,15 +43,19 @@ def native_instance_warning(proto: Prototype, what: str) -> str:
     )
 
 
-def baked_sun_attribute(proto: Prototype, method: str, sun_local: np.ndarray) -> list[AttributeEdit]:
-    """``foliage:<method>:sunDirection`` on the prototype prim: the sun the per-leaf light was baked for.
+def baked_sun_attribute(scene: Scene, index: int, method: str, sun_direction: np.ndarray) -> list[AttributeEdit]:
+    """``foliage:<method>:sunDirection`` on prototype ``index``'s prim: the sun its per-leaf light was baked for.
 
-    A unit vector toward the sun in the prototype's own frame (as seen by its
-    first instance, like the bake). The previewer compares it with the sun it
-    draws under and warns when they differ: primvar-baked scattered light holds
-    one sun only. Empty for native-instance prototypes, like the primvars.
+    ``sun_direction`` is the world direction toward the sun; the attribute holds
+    it in the prototype's own frame, as its first instance sees it (like the
+    bake). The previewer compares it with the sun it draws under and warns when
+    they differ: primvar-baked scattered light holds one sun only. Empty for
+    native-instance prototypes, like the primvars.
     """
+    from foliage_tools.pipeline.stage import first_instance_sun
+
+    proto = scene.prototypes[index]
     if not proto.editable:
         return []
-    d = tuple(float(v) for v in sun_local)
+    d = tuple(float(v) for v in first_instance_sun(scene, index, sun_direction))
     return [AttributeEdit(prim=proto.path, api=None, values={f"foliage:{method}:sunDirection": (d, "Vector3f")})]

@@ -20,7 +20,7 @@ from foliage_tools.lighting import reference
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
-from foliage_tools.pipeline.stage import begin_bake, first_instance_sun
+from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.pipeline.smax import sky_radiance
 from foliage_tools.pipeline.world import World, assemble, prototype_means
 from foliage_tools.scene.model import Scene
@@ -127,7 +127,7 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
             report.warnings.append(native_instance_warning(proto, "reference primvars"))
         edits.primvars += leaf_primvar_edits(proto, "foliage:ref:direct", direct[i], type="color3f")
         edits.primvars += leaf_primvar_edits(proto, "foliage:ref:scattered", scattered[i], type="color3f")
-        edits.attributes += baked_sun_attribute(proto, "ref", first_instance_sun(scene, i, sun.direction))
+        edits.attributes += baked_sun_attribute(scene, i, "ref", sun.direction)
         if proto.editable:  # provenance: what the per-leaf values were traced with, and how noisy they are
             edits.attributes.append(AttributeEdit(prim=proto.path, api=None, values={
                 "foliage:ref:paths": (int(res.paths), "Int64"),

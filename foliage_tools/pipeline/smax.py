@@ -18,7 +18,7 @@ from foliage_tools.lighting import boulanger, envelope
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
-from foliage_tools.pipeline.stage import begin_bake, first_instance_sun, sun_in_prototype
+from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.schemas import ENVELOPE_API
 from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
@@ -103,7 +103,7 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
         edits.primvars += leaf_primvar_edits(proto, "foliage:attenuation", env.attenuation, type="float", element_size=8)
         edits.primvars += leaf_primvar_edits(proto, "foliage:smax:direct", light.e_direct, type="color3f")
         edits.primvars += leaf_primvar_edits(proto, "foliage:smax:scattered", light.e_scattered, type="color3f")
-        edits.attributes += baked_sun_attribute(proto, "smax", first_instance_sun(scene, bake.index, sun.direction))
+        edits.attributes += baked_sun_attribute(scene, bake.index, "smax", sun.direction)
         if proto.editable:
             edits.attributes.append(
                 AttributeEdit(

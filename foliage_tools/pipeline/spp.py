@@ -58,7 +58,7 @@ from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, density_for_bake, vdb_path, volume_path
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
-from foliage_tools.pipeline.stage import begin_bake, first_instance_sun
+from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.vdb import Grid
 from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, stage_metadata, write_layer
@@ -357,7 +357,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         best = res.sppg if params.gfactor else res.spp
         edits.primvars += _vertex_values(proto, best.direct + best.scattered, "color3f", "foliage:sppIrradiance")
         edits.primvars += _vertex_values(proto, res.gfactor, "float", "foliage:gFactor")
-        edits.attributes += baked_sun_attribute(proto, "spp", first_instance_sun(scene, bake.index, sun.direction))
+        edits.attributes += baked_sun_attribute(scene, bake.index, "spp", sun.direction)
         protos.append({
             "path": proto.path, "leaves": proto.leaves.count, "cells": int(bake.grid_depth.size), "resolution": list(bake.grid_depth.shape),
             "gfactor_mean": float(np.mean(res.gfactor)), "seconds": bake.seconds,
