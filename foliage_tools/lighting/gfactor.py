@@ -389,6 +389,8 @@ def solve_sppg(
     up=(0.0, 0.0, 1.0),
     neighbour_depths: DepthSamples | None = None,
     params: SPPGParams | None = None,
+    sun_visible=None,
+    sample_visible=None,
 ) -> SPPGResult:
     """SPPG, SPP and SS irradiance per leaf for the sun and a uniform sky (shinya2013 sec. 5.4 steps 4-6).
 
@@ -427,6 +429,7 @@ def solve_sppg(
         raise ValueError(f"depths must be a DepthSamples, got {type(depths).__name__}")  # noqa: TRY004
     if not isinstance(optics, LeafOptics):
         raise ValueError(f"optics must be a LeafOptics, got {type(optics).__name__}")  # noqa: TRY004
+    nb = neighbour_depths
     if neighbour_depths is not None:
         depths = depths + neighbour_depths
     upv = _unit(up, "up")
@@ -455,7 +458,10 @@ def solve_sppg(
     u = depths.sun_depth
     big_u = depths.sun_thickness
     t_sun = np.array([float(forward_fraction(ph, mu0)) for ph in phases])
-    direct = np.abs(nl @ sun) * np.exp(-u)
+    if sun_visible is None:
+        direct = np.abs(nl @ sun) * np.exp(-u)
+    else:
+        direct = np.abs(nl @ sun) * np.asarray(sun_visible, dtype=np.float64) * np.exp(-(0.0 if nb is None else nb.sun_depth))
     direct3 = np.repeat(direct[:, None], n_ch, axis=1)
     g_sun = gfactor(
         boundary_depth=depths.sample_depth,
@@ -490,7 +496,11 @@ def solve_sppg(
                 light_thickness=wj,
                 up=upv,
             )
-            sky_direct += (weights[j] * np.abs(nl @ dirs[j]) * np.exp(-uj))[:, None]
+            if sample_visible is None:
+                vis_j = np.exp(-uj)
+            else:
+                vis_j = np.asarray(sample_visible, dtype=np.float64)[:, j] * np.exp(-(0.0 if nb is None else nb.sample_depth[:, j]))
+            sky_direct += (weights[j] * np.abs(nl @ dirs[j]) * vis_j)[:, None]
             sky_spp += weights[j] * ej
             sky_sppg += weights[j] * gj[:, None] * ej
 

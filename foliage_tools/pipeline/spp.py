@@ -141,13 +141,13 @@ def _is_similarity(m: np.ndarray) -> bool:
     return s2 > 0.0 and bool(np.allclose(gram, s2 * np.eye(3), rtol=0.0, atol=depth_mod.SIMILARITY_TOLERANCE * s2))
 
 
-def _own_depths(proto: Prototype, dens: DensityResult, sun_local, dirs_local, params: SppParams) -> depth_mod.DepthSamples:
+def _own_depths(proto: Prototype, dens: DensityResult, sun_local, dirs_local, params: SppParams):
     """Depths of the prototype's leaves through its own leaves (shinya2013 eq. 29), own leaf excluded."""
     tri = proto.triangles(leaves=True)
     ids = rd.prototype_leaf_ids(proto)
     if params.depth == "rays":
         try:
-            return rd.leaf_ray_depth_samples(
+            return rd.leaf_ray_depths(
                 tri, ids, sun_direction=sun_local, directions=dirs_local, rays_per_leaf=params.rays_per_leaf,
                 centers=proto.leaves.centers if params.rays_per_leaf == 1 else None, seed=params.seed, workers=_WORKERS,
             )
@@ -255,6 +255,10 @@ def bake_prototype(
         dirs_local = np.array([to_prototype_space(d, m) for d in dirs_world])
         t0 = time.perf_counter()
         own = _own_depths(proto, dens, sun_local, dirs_local, params)
+        vis = {}
+        if isinstance(own, rd.LeafRayDepths):
+            vis = {"sun_visible": own.sun_visible, "sample_visible": own.sample_visible}
+            own = own.depths
         extra = None
         if neighbours is not None and instances:
             extra, count = neighbours.depths(instances[k], _world_points(proto.leaves.centers, m), sun.direction, dirs_world)
@@ -262,7 +266,7 @@ def bake_prototype(
         t_depths += time.perf_counter() - t0
         results.append(gf.solve_sppg(
             own, normals=proto.leaves.normals, optics=params.optics, sun_direction=sun_local, directions=dirs_local, up=up_local,
-            neighbour_depths=extra, params=gf.SPPGParams(refine=params.refine),
+            neighbour_depths=extra, params=gf.SPPGParams(refine=params.refine), **vis,
         ))
     result = _mean_result(results)
     # cells of the prototype alone, as seen by its first instance

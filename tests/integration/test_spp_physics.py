@@ -201,8 +201,12 @@ def test_sppg_corrects_spp_where_it_is_too_bright_in_the_papers_setting(which, r
     err_spp = np.abs(spp.scattered[over, 1] - mc[over]).mean()
     err_sppg = np.abs(sppg.scattered[over, 1] - mc[over]).mean()
     assert err_sppg < 0.5 * err_spp  # measured 0.35x / 0.36x
-    # Table 3: SPPG has the smallest binned error of the total irradiance (here SPP < SS, the paper had SS < SPP)
+    # Table 3 binned error of the total irradiance, each method with its own direct term: SPP and SPPG
+    # both well below SS (which scatters nothing). The paper has SPPG first; so did this test until the
+    # ray-count direct term was fixed (exp(-mean count) overestimated the direct light, and SPPG's lower
+    # scattered light partly offset that): now SPPG 0.134 / 0.167 against SPP 0.135 / 0.120
+    # (tree_small / oak), so the G-factor's gain in the lower crown is not a gain in the total here.
     depth, thickness = depth_thickness(refbake.world, sun.direction)
     total = ref.e_direct + ref.e_scattered
     binned = {name: binned_rms(r.direct + r.scattered, total, depth, thickness) for name, r in (("spp", spp), ("sppg", sppg), ("ss", ss))}
-    assert binned["sppg"] < 0.8 * binned["spp"] and binned["spp"] < 0.8 * binned["ss"], binned
+    assert binned["sppg"] < 0.5 * binned["ss"] and binned["spp"] < 0.5 * binned["ss"], binned
