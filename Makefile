@@ -6,6 +6,7 @@ FOLIAGE := $(VENV)/bin/foliage
 STAMP   := $(VENV)/.installed
 EXAMPLE := examples/tree_small.usda
 DEMO    := out/demo
+OAK     := ../shared/assets/webots_oak/oak.usda
 
 .PHONY: setup demo test test-slow bench clean
 
@@ -29,14 +30,15 @@ test-slow: setup
 	$(PY) -m pytest -m slow -q
 
 # Speed studies (not tests): each script prints its own table. Run one with
-# `make bench BENCH=density` (density, lb, lb_issue, smax, reference, preview, spp_tables, sppg).
-BENCH ?= density lb lb_issue smax reference preview spp_tables sppg
+# `make bench BENCH=density` (density, lb, lb_issue, smax, reference, reference_noise, direct, preview, spp_tables, sppg).
+BENCH ?= density lb lb_issue smax reference reference_noise direct preview spp_tables sppg
 bench: setup
 	@for b in $(BENCH); do \
 	  if [ -f benchmarks/bench_$$b.py ]; then echo "== benchmarks/bench_$$b.py"; $(PY) benchmarks/bench_$$b.py || exit 1; fi; \
 	done
 	@echo "== speed vs error on the example (foliage bench)"
-	$(FOLIAGE) bench $(EXAMPLE) --paths 8000000
+	$(FOLIAGE) bench $(EXAMPLE)
+	@if [ -f $(OAK) ]; then echo "== speed vs error on the Webots oak (foliage bench)"; $(FOLIAGE) bench $(OAK); fi
 
 clean:
 	rm -rf out .pytest_cache

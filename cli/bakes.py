@@ -9,7 +9,10 @@ from rich.markup import escape
 from rich.table import Table
 
 from foliage_tools.cli import console
-from foliage_tools.cli.common import OUT, SCENE, bake_options, common_options, execute, leaf_optics_from_flags, run, setup_logging
+from foliage_tools.cli.common import (
+    OUT, SCENE, parse_direct_samples, bake_options, common_options, direct_choice, direct_options, execute, leaf_optics_from_flags, run,
+    setup_logging,
+)
 
 
 def _eight_directions(ctx: click.Context, param: click.Parameter, value: int) -> int:
@@ -32,10 +35,11 @@ def _eight_directions(ctx: click.Context, param: click.Parameter, value: int) ->
 @click.option("--path", "path_", type=click.Choice(["auto", "reference", "fast"]), default="auto", show_default=True,
               help="reference: the thesis' O(N²) neighbour binning (sec. 5.6); fast: exact near sums + FFT far field; "
                    "auto: reference below 20k leaves.")
+@direct_options
 @bake_options
 @common_options
-def smax(scene: Path, out: Path, directions: int, path_: str, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
-         as_json: bool, quiet: bool, verbose: int) -> None:
+def smax(scene: Path, out: Path, directions: int, path_: str, direct_mode: str, direct_samples: int, sun: str | None,
+         leaf_optics: str | None, wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
     """Per-leaf envelope distances s_max and Boulanger's tree lighting (boulanger2008 ch. 5).
 
     For every leaf: s_max toward the 8 directions of eq. 5.28
@@ -56,7 +60,7 @@ def smax(scene: Path, out: Path, directions: int, path_: str, sun: str | None, l
         params = SmaxParams(
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
-            path=path_,
+            path=path_, direct=direct_choice(direct_mode, direct_samples),
         )
 
         def render(report) -> None:
@@ -78,24 +82,31 @@ def smax(scene: Path, out: Path, directions: int, path_: str, sun: str | None, l
 @SCENE
 @OUT
 @click.option("--paths", type=click.IntRange(min=2), default=1_000_000, show_default=True,
-              help="Sun photon paths (the sky gets as many when the stage has a DomeLight). Noise falls as 1/sqrt(paths).")
+              help="Sun photon paths; with --noise, the most that will be traced. Noise falls as 1/sqrt(paths).")
+@click.option("--noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=None,
+              help="Stop once the per-leaf E_scattered noise (relative RMS over leaves, from two independent halves) is at "
+                   "or below this, e.g. 0.01 for 1 %; the result is still fixed by --seed.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed; results are bitwise reproducible for a seed.")
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Threads [default: all cores]; does not change the results.")
 @bake_options
 @common_options
-def reference(scene: Path, out: Path, paths: int, seed: int, workers: int | None, sun: str | None, leaf_optics: str | None,
-              wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
-    """Monte Carlo ground truth: trace light through the actual leaves and wood (Embree).
+def reference(scene: Path, out: Path, paths: int, noise: float | None, seed: int, workers: int | None, sun: str | None,
+              leaf_optics: str | None, wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
+    """Monte Carlo ground truth: trace sunlight through the actual leaves and wood (Embree).
 
     Two-sided Lambertian leaves, opaque Lambertian wood, the sun as parallel
-    rays of irradiance 1 and the sky from the DomeLight; unbiased (Russian
-    roulette), seeded. Writes per-leaf E_direct and E_scattered (both faces
-    summed) as primvars:foliage:ref:direct / :scattered, and reports its own
-    noise (relative RMS, from two independent halves).
+    rays of irradiance 1 (the sky is not traced: every per-leaf output is the
+    sun's light). The beam's first hits are drawn on the surfaces and kept by
+    shadow rays, absorption is taken by its expected value while a photon is
+    bright (Russian roulette after that): unbiased, seeded. Writes per-leaf
+    E_direct and E_scattered (both faces summed) as
+    primvars:foliage:ref:direct / :scattered, and reports its own noise for
+    each (relative RMS, from two independent halves).
 
     \b
-    Example:
+    Examples:
       foliage reference examples/tree_small.usda -o out/tree.ref.usda --paths 4000000 --seed 1
+      foliage reference examples/tree_small.usda -o out/tree.ref.usda --noise 0.01 --paths 100000000
     """
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.reference import ReferenceParams, run_reference
@@ -105,14 +116,15 @@ def reference(scene: Path, out: Path, paths: int, seed: int, workers: int | None
         params = ReferenceParams(
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
-            paths=paths, seed=seed, workers=workers,
+            paths=paths, seed=seed, workers=workers, noise=noise,
         )
 
         def render(report) -> None:
             s = report.stats
             console.stdout.print(
-                f"{s['paths']:,} sun + {s['sky_paths']:,} sky paths on {s['workers']} worker(s) in {report.seconds:.2f} s; "
-                f"{s['leaves']} leaves; noise (rel. RMS of E_scattered) {s['noise_rel']:.3f}", highlight=False, soft_wrap=True)
+                f"{s['paths']:,} sun paths on {s['workers']} worker(s) in {report.seconds:.2f} s; {s['leaves']} leaves; "
+                f"noise (rel. RMS over leaves) E_scattered {s['noise_rel']:.4f}, E_direct {s['noise_rel_direct']:.4f}, "
+                f"total {s['noise_rel_total']:.4f}", highlight=False, soft_wrap=True)
             console.stdout.print(
                 f"mean E_direct (RGB) {', '.join(f'{v:.4g}' for v in s['e_direct_mean'])}; "
                 f"mean E_scattered {', '.join(f'{v:.4g}' for v in s['e_scattered_mean'])}", highlight=False, soft_wrap=True)
@@ -126,19 +138,27 @@ def reference(scene: Path, out: Path, paths: int, seed: int, workers: int | None
 @SCENE
 @click.option("--methods", "methods_", default=None, metavar="NAME,...", help="Methods to run, by name or family (lb = lb-32 and lb-64) [default: every available one].")
 @click.option("--plot", type=click.Path(path_type=Path, dir_okay=False), default=None, help="Write a log-log speed-vs-error plot (PNG/SVG/PDF).")
-@click.option("--paths", type=click.IntRange(min=2), default=4_000_000, show_default=True, help="Reference Monte Carlo sun paths.")
+@click.option("--paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
+              help="Most reference Monte Carlo sun paths (it stops earlier at --noise).")
+@click.option("--noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,
+              help="Reference per-leaf E_scattered noise at which tracing stops; 2 % resolves a 5 % error.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Reference seed.")
+@click.option("--direct-samples", default="auto", show_default=True, callback=parse_direct_samples, metavar="auto|N",
+              help="Shadow rays per leaf for the exact E_direct (--direct rays) every method is scored with (as the bakes).")
 @bake_options
 @common_options
-def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed: int, sun: str | None, leaf_optics: str | None,
-          wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
+def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, noise: float, seed: int, direct_samples: int | None,
+          sun: str | None, leaf_optics: str | None, wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
     """Speed against error: every available method against the Monte Carlo reference.
 
     For each method: seconds, relative RMS error of E_scattered and of the
     total (E_direct + E_scattered) over all leaves of all instances, and the
     depth-thickness binned error of shinya2013 eq. 30 — with the reference's
-    own noise beside them (an exact method would score about that). Methods
-    that have not landed are listed as unavailable.
+    own noise beside them (an exact method would score about that). The total
+    is scored twice: with the exact direct light every bake writes by default
+    (--direct rays; its seconds are added to the method's) and with the
+    method's own volume estimate (--direct volume). Methods that have not
+    landed are listed as unavailable.
 
     \b
     Example:
@@ -157,8 +177,9 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             methods=tuple(n.strip() for n in methods_.split(",") if n.strip()) if methods_ else None,
-            paths=paths, seed=seed,
+            paths=paths, noise=noise, seed=seed, direct_samples=direct_samples,
         )
+
         def stage(progress):
             report = run_bench(scene, params, progress=progress)
             if plot is not None:
@@ -171,14 +192,20 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed
             s = report.stats
             ref = s["reference"]
             table = Table(title=f"{escape(str(scene))}: {s['leaves']} leaves, sun az {s['sun']['azimuth']:.0f}° el {s['sun']['elevation']:.0f}°")
-            for col in ("method", "seconds", "rel. RMS E_scattered", "rel. RMS total", "binned E_scattered (eq. 30)", "binned total (eq. 30)"):
+            cols = ("method", "seconds", "rel. RMS E_scattered", "rel. RMS total", "total, own direct",
+                    "binned E_scattered (eq. 30)", "binned total (eq. 30)")
+            for col in cols:
                 table.add_column(col, justify="left" if col == "method" else "right")
-            table.add_row("reference (MC)", f"{ref['seconds']:.2f}", f"noise {ref['noise_rel']:.3f}", f"noise {ref['noise_rel_total']:.3f}", "", "")
+            table.add_row("reference (MC)", f"{ref['seconds']:.2f}", f"noise {ref['noise_rel']:.3f}", f"noise {ref['noise_rel_total']:.3f}",
+                          "", "", "")
+            d = s["direct"]
+            table.add_row("direct (rays)", f"{d['seconds']:.3f}", "", f"E_direct {d['rel_rms_direct']:.3f}", "", "", "")
             for m in s["methods"]:
                 if not m["available"]:
-                    table.add_row(escape(m["name"]), "not available", "", "", "", "")
+                    table.add_row(escape(m["name"]), "not available", *[""] * (len(cols) - 2))
                     continue
-                cells = ["n/a" if m[k] is None else f"{m[k]:.3f}" for k in ("rel_rms_scattered", "rel_rms_total", "binned_rms", "binned_rms_total")]
+                keys = ("rel_rms_scattered", "rel_rms_total", "rel_rms_total_volume", "binned_rms", "binned_rms_total")
+                cells = ["n/a" if m[k] is None else f"{m[k]:.3f}" for k in keys]
                 table.add_row(escape(m["name"]), f"{m['seconds']:.3f}", *cells)
             console.stdout.print(table)
 
@@ -203,10 +230,12 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, seed
 @click.option("--max-sweeps", type=click.IntRange(min=1), default=20000, show_default=True,
               help="Stop after this many lattice sweeps. Short of --tolerance the layer is still written, and the "
                    "command exits 1 (a bake that failed its accuracy check).")
+@direct_options
 @bake_options
 @common_options
-def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, solver: str, absorption_scale: float, max_sweeps: int, sun: str | None,
-       leaf_optics: str | None, wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
+def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, solver: str, absorption_scale: float, max_sweeps: int,
+       direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+       as_json: bool, quiet: bool, verbose: int) -> None:
     """Lattice-Boltzmann light bake (geist2008, steele2010) per unique prototype.
 
     Voxelizes each prototype's leaves (exact leaf-area density; an earlier
@@ -232,7 +261,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, bases=bases, tolerance=tolerance, solver=solver, absorption_scale=absorption_scale,
-            max_sweeps=max_sweeps,
+            max_sweeps=max_sweeps, direct=direct_choice(direct_mode, direct_samples),
         )
 
         def render(report) -> None:
@@ -254,11 +283,16 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
 @click.option("-o", "--output", "outdir", required=True, type=click.Path(path_type=Path, file_okay=False), help="Output directory (created if missing).")
 @click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True, help="Density and LB grid resolution.")
 @click.option("--with-reference", is_flag=True, help="Also trace the Monte Carlo reference and write bench.json / bench.png.")
-@click.option("--reference-paths", type=click.IntRange(min=2), default=4_000_000, show_default=True, help="Reference sun paths (with --with-reference).")
+@click.option("--reference-paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
+              help="Most reference sun paths (with --with-reference); it stops earlier at --reference-noise.")
+@click.option("--reference-noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,
+              help="Reference per-leaf E_scattered noise at which tracing stops (with --with-reference).")
+@direct_options
 @bake_options
 @common_options
-def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, sun: str | None, leaf_optics: str | None,
-         wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
+def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float,
+         direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+         as_json: bool, quiet: bool, verbose: int) -> None:
     """The main job: density, s_max, SPP and LB bakes, a preview (and a speed-vs-error report) into OUTDIR.
 
     Each stage writes a layer that sublayers the previous one, so the last
@@ -277,6 +311,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
+            reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples),
         )
 
         def render(report) -> None:
@@ -317,10 +352,12 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "(tree_small 0.22 vs 0.33, Webots oak 0.24 vs 0.41 rel. RMS) at 1.5-2.5x the bake time on those 1.5k-2k-leaf trees.")
 @click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True,
               help="With --depth rays: origins per leaf, uniform over its area (seeded); more rays, less count noise (1/sqrt).")
+@direct_options
 @bake_options
 @common_options
-def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, depth: str, rays_per_leaf: int, sun: str | None,
-        leaf_optics: str | None, wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
+def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, depth: str, rays_per_leaf: int,
+        direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+        as_json: bool, quiet: bool, verbose: int) -> None:
     """Simplified plane-parallel scattering with the G-factor (shinya2013).
 
     Measures each leaf's optical depth and thickness toward the sun and N
@@ -346,7 +383,7 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, directions=directions, gfactor=not no_gfactor, refine=refine,
-            depth=depth, rays_per_leaf=rays_per_leaf,
+            depth=depth, rays_per_leaf=rays_per_leaf, direct=direct_choice(direct_mode, direct_samples),
         )
 
         def render(report) -> None:

@@ -145,6 +145,40 @@ def bake_options(fn: Callable) -> Callable:
     return fn
 
 
+def direct_options(fn: Callable) -> Callable:
+    """``--direct`` and ``--direct-samples``: the E_direct a bake writes (shared by lb, spp, smax and bake)."""
+    fn = click.option(
+        "--direct-samples", default="auto", show_default=True, callback=parse_direct_samples, metavar="auto|N",
+        help="With --direct rays: shadow rays per leaf, an even number (two halves give the sampling error in the JSON "
+             "report). auto: 256 up to 130k leaves, fewer above so the scene takes at most 32M rays (32 at 1M leaves).",
+    )(fn)
+    fn = click.option(
+        "--direct", "direct_mode", type=click.Choice(["rays", "volume"]), default="rays", show_default=True,
+        help="E_direct per leaf (primvars:foliage:<m>:direct). rays: exact, from shadow rays toward the sun through every "
+             "leaf and wood triangle of every instance, stratified over each leaf's area (Embree). volume: the method's own "
+             "estimate from its volume model, as in the papers (kept so `foliage bench` can show both).",
+    )(fn)
+    return fn
+
+
+def parse_direct_samples(ctx: click.Context, param: click.Parameter, value) -> int | None:
+    if value is None or str(value).strip().lower() == "auto":
+        return None
+    try:
+        k = int(str(value).strip())
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is neither 'auto' nor a whole number.", ctx=ctx, param=param) from None
+    if k < 2 or k % 2:
+        raise click.BadParameter(f"{k} must be even and at least 2 (two halves give the sampling error).", ctx=ctx, param=param)
+    return k
+
+
+def direct_choice(mode: str, samples: int | None):
+    from foliage_tools.pipeline.direct import DirectChoice
+
+    return DirectChoice(mode=mode, samples=samples)
+
+
 def leaf_optics_from_flags(leaf_optics: str | None, wood_reflectance: float | None):
     from foliage_tools.errors import UsageError
     from foliage_tools.lighting.optics import parse_leaf_optics

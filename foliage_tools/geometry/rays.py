@@ -205,6 +205,48 @@ class RayScene:
                 list(pool.map(run, spans))
         return tri_id, t
 
+    def occluded(self, origins, directions, *, workers: int = 1, chunk: int = DEFAULT_CHUNK) -> np.ndarray:
+        """Whether each ray hits anything (an Embree occlusion query: any hit, not the first).
+
+        Parameters
+        ----------
+        origins, directions : (N, 3) array_like of float
+            Ray origins and directions; rays start at t = 0 and run to infinity.
+        workers : int
+            Threads used to split the rays (results are identical for any value).
+        chunk : int
+            Rays per Embree call.
+
+        Returns
+        -------
+        numpy.ndarray (N,) bool
+        """
+        o, d = _as_rays(origins, directions)
+        n = o.shape[0]
+        out = np.zeros(n, dtype=bool)
+        if n == 0 or self._scene is None:
+            return out
+        if chunk < 1 or workers < 1:
+            raise ValueError(f"chunk and workers must be >= 1, got {chunk} and {workers}")
+        spans = [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
+
+        def run(span):
+            a, b = span
+            res = self._scene.run(
+                np.ascontiguousarray(o[a:b], dtype=np.float32),
+                np.ascontiguousarray(d[a:b], dtype=np.float32),
+                query="OCCLUDED",
+            )
+            out[a:b] = np.asarray(res) >= 0
+
+        if workers == 1 or len(spans) == 1:
+            for span in spans:
+                run(span)
+        else:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                list(pool.map(run, spans))
+        return out
+
     def _run(self, o, d, far, tri_out, t_out, refine) -> None:
         """Trace one chunk into the given output slices."""
         dists = np.minimum(far, float(_EMBREE_FAR)).astype(np.float32)
@@ -300,6 +342,13 @@ class PeriodicRayScene:
     def offset_distance(self) -> float:
         """See :meth:`RayScene.offset_distance` (taken over the 3 x 3 block)."""
         return self._tiles.offset_distance()
+
+    def occluded(self, origins, directions, *, workers: int = 1) -> np.ndarray:
+        """(N,) bool: whether each ray hits a triangle of the infinite layer (see :meth:`intersect`)."""
+        hits = self.intersect(origins, directions)
+        if np.any(hits.truncated):
+            raise RuntimeError(f"{int(hits.truncated.sum())} occlusion ray(s) crossed too many cells of the periodic layer")
+        return hits.tri_id >= 0
 
     def wrap(self, points) -> np.ndarray:
         """Map points into the base cell (x and y modulo the periods)."""

@@ -24,6 +24,7 @@ from pathlib import Path
 from foliage_tools.errors import FoliageError, OutputError
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
+from foliage_tools.pipeline.direct import DirectChoice
 from foliage_tools.pipeline.report import Progress, Report, Silent
 
 
@@ -35,7 +36,12 @@ class BakeParams:
     """Density and LB grid resolution (voxels along the longest foliage edge)."""
     with_reference: bool = False
     """Also trace the Monte Carlo reference and write the bench report."""
-    reference_paths: int = 4_000_000
+    reference_paths: int = 64_000_000
+    """Most reference sun paths (with ``with_reference``); it stops earlier at ``reference_noise``."""
+    reference_noise: float | None = 0.02
+    """Per-leaf E_scattered noise at which the reference stops (None: trace ``reference_paths``)."""
+    direct: DirectChoice = DirectChoice()
+    """``--direct`` for every bake stage."""
 
 
 def _stage(name: str, fn, *args, **kwargs):
@@ -102,12 +108,12 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) 
     density_out = work / f"{stem}.density.usda"
     stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution), progress=progress)
     smax_out = work / f"{stem}.smax.usda"
-    stages["smax"] = _stage("smax", run_smax, density_out, smax_out, SmaxParams(optics=params.optics, sun=params.sun), progress=progress)
+    stages["smax"] = _stage("smax", run_smax, density_out, smax_out, SmaxParams(optics=params.optics, sun=params.sun, direct=params.direct), progress=progress)
     spp_out = work / f"{stem}.spp.usda"
-    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution), progress=progress)
+    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct), progress=progress)
     lb_out = work / f"{stem}.lb.usda"
     stages["lb"] = _stage(
-        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution), progress=progress
+        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct), progress=progress
     )
     # a picture of the bake: direct light beside direct + LB indirect, same exposure
     stages["preview"] = _stage(
@@ -119,7 +125,8 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) 
         from foliage_tools.pipeline.bench import BenchParams, run_bench
         from foliage_tools.scene.atomic import atomic_outputs
 
-        bench_params = BenchParams(optics=params.optics, sun=params.sun, paths=params.reference_paths, paths_flag="--reference-paths")
+        bench_params = BenchParams(optics=params.optics, sun=params.sun, paths=params.reference_paths, noise=params.reference_noise,
+                                   paths_flag="--reference-paths", noise_flag="--reference-noise", direct_samples=params.direct.samples)
         bench = _stage("bench", run_bench, path, bench_params, progress=progress)
         stages["bench"] = bench
         json_path = work / "bench.json"

@@ -13,6 +13,7 @@ from foliage_tools.bench.registry import BenchContext, methods
 from foliage_tools.errors import UsageError
 from foliage_tools.geometry.rays import RayScene, count_crossings
 from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.reference import ReferenceParams, bake_reference, noise_warnings
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
@@ -25,11 +26,16 @@ class BenchParams:
     sun: tuple[float, float] | None = None
     methods: tuple[str, ...] | None = None
     """Names to run (None: all available)."""
-    paths: int = 4_000_000
-    """Reference sun paths."""
+    paths: int = 64_000_000
+    """Most reference sun paths (it stops earlier at ``noise``)."""
+    noise: float | None = 0.02
+    """Reference per-leaf E_scattered noise at which it stops (None: trace ``paths``)."""
     seed: int = 0
     paths_flag: str = "--paths"
     """The option that sets ``paths``, named in the warnings (``bake`` calls it --reference-paths)."""
+    noise_flag: str = "--noise"
+    direct_samples: int | None = None
+    """Shadow rays per leaf of the exact E_direct (``--direct rays``); None: as the bakes' ``auto``."""
 
 
 def _per_global_leaf(world: World, per_proto: dict[int, np.ndarray], n_leaves: int) -> np.ndarray:
@@ -68,13 +74,19 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
     selected = [m for m in all_methods if not params.methods or any(matches(r, m.name) for r in params.methods)]
 
     t0 = time.perf_counter()
-    ref = bake_reference(scene, sun, ReferenceParams(optics=params.optics, paths=params.paths, seed=params.seed), progress)
+    ref = bake_reference(scene, sun, ReferenceParams(optics=params.optics, paths=params.paths, seed=params.seed,
+                                                     noise=params.noise), progress)
     ref_seconds = time.perf_counter() - t0
     world, res = ref.world, ref.result
     n = int(world.offsets[-1])
     progress.step("depth and thickness of every leaf toward the sun")
     depth, thickness = depth_thickness(world, sun.direction)
     ref_total = res.e_direct + res.e_scattered
+    # the exact direct light every bake writes by default (--direct rays), once for all methods
+    t0 = time.perf_counter()
+    exact = bake_direct(scene, sun, DirectChoice(samples=params.direct_samples), progress, world=world)
+    direct_seconds = time.perf_counter() - t0
+    exact_direct = np.repeat(exact.result.e_direct[:, None], 3, axis=1)  # per global leaf
 
     rows = []
     progress.step(f"running {sum(m.available for m in selected)} method(s)", total=len(selected))
@@ -82,30 +94,40 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
         if not m.available:
             rows.append({"name": m.name, "available": False, "description": m.description, "seconds": None,
                          "rel_rms_scattered": None, "rel_rms_total": None, "binned_rms": None,
-                         "binned_rms_total": None})
+                         "binned_rms_total": None, "rel_rms_total_volume": None})
             progress.advance()
             continue
         ctx = BenchContext(scene=scene, sun=sun, optics=params.optics, warnings=report.warnings)
         t = time.perf_counter()
         out = m.run(ctx)
-        seconds = time.perf_counter() - t
+        seconds_volume = time.perf_counter() - t
         scat = _per_global_leaf(world, out.e_scattered, n)
-        direct = _per_global_leaf(world, out.e_direct, n)
+        own = _per_global_leaf(world, out.e_direct, n)
         errors = {
             "rel_rms_scattered": rel_rms(scat, res.e_scattered),
-            "rel_rms_direct": rel_rms(direct, res.e_direct),
-            "rel_rms_total": rel_rms(direct + scat, ref_total),
+            # with the exact direct light (--direct rays, the default of every bake)
+            "rel_rms_direct": rel_rms(exact_direct, res.e_direct),
+            "rel_rms_total": rel_rms(exact_direct + scat, ref_total),
             "binned_rms": binned_rms(scat, res.e_scattered, depth, thickness),
             # shinya2013 Table 3 bins the irradiance of a mesh, i.e. the total
-            "binned_rms_total": binned_rms(direct + scat, ref_total, depth, thickness),
+            "binned_rms_total": binned_rms(exact_direct + scat, ref_total, depth, thickness),
+            # with the method's own volume estimate of the direct light (--direct volume, the papers')
+            "rel_rms_direct_volume": rel_rms(own, res.e_direct),
+            "rel_rms_total_volume": rel_rms(own + scat, ref_total),
+            "binned_rms_total_volume": binned_rms(own + scat, ref_total, depth, thickness),
         }
+        seconds = seconds_volume + direct_seconds
         for key, value in errors.items():
             if not np.isfinite(value):  # the reference is all zero there: a relative error is undefined
                 report.warnings.append(f"{m.name}: {key} is undefined (the reference is zero everywhere); reported as null.")
                 errors[key] = None
-        rows.append({"name": m.name, "available": True, "description": m.description, "seconds": seconds, **errors, "stats": out.stats})
+        rows.append({"name": m.name, "available": True, "description": m.description, "seconds": seconds,
+                     "seconds_volume": seconds_volume, **errors, "stats": out.stats})
         progress.advance()
     report.warnings.extend(noise_warnings(int(res.paths), float(res.noise_rel), params.paths_flag))
+    if params.noise is not None and res.noise_rel > params.noise:
+        report.warnings.append(f"the reference stopped at {params.paths_flag} {params.paths:,} with E_scattered noise "
+                               f"{res.noise_rel:.4f}, above {params.noise_flag} {params.noise:g}; raise {params.paths_flag}.")
     # a method's measured error is about sqrt(true² + noise²): below twice the noise it is not resolved
     unresolved = [r["name"] for r in rows if r["available"] and r["rel_rms_scattered"] is not None
                   and r["rel_rms_scattered"] < 2.0 * float(res.noise_rel)]
@@ -122,7 +144,9 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
         "reference": {
             "paths": int(res.paths), "sky_paths": int(res.sky_paths), "seed": params.seed, "seconds": ref_seconds,
             "noise_rel": float(res.noise_rel), "noise_rel_total": float(res.noise_rel_total),
+            "noise_rel_direct": float(res.noise_rel_direct), "noise_target": params.noise,
         },
+        "direct": {**exact.stats(), "seconds": direct_seconds, "rel_rms_direct": rel_rms(exact_direct, res.e_direct)},
         "methods": rows,
         "binned_rms_definition": "sqrt(sum_b (<x>_b - <ref>_b)^2 / sum_b <ref>_b^2) over 8x8 quantile classes of "
                                  "(crossings toward the sun, total crossings) — shinya2013 eq. (30) read with the square outside; "

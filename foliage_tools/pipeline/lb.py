@@ -32,6 +32,7 @@ from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path, volume_path
 from foliage_tools.pipeline.plan import available_memory
+from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
@@ -62,6 +63,8 @@ class LBBakeParams:
     """σa = scale × (1 − r − t): 1 is the physical leaf; geist2008 used 0.125 (sec. 3)."""
     max_sweeps: int = 20000
     """Sweeps after which the solver stops short of ``tolerance`` (the bake then fails its accuracy check: exit 1)."""
+    direct: DirectChoice = DirectChoice()
+    """``--direct``: what ``primvars:foliage:lb:direct`` holds (exact shadow rays by default, or the lattice's own)."""
 
     def __post_init__(self) -> None:
         if self.bases not in BASES:
@@ -195,8 +198,11 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
     report, scene, sun = begin_bake("lb", path, out, params.sun, progress)
     edits = LayerEdits()
     protos = []
-    for bake in bake_lb(scene, sun, params, report.warnings, progress):
+    bakes = bake_lb(scene, sun, params, report.warnings, progress)
+    exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
+    for bake in bakes:
         proto = scene.prototypes[bake.index]
+        e_direct = exact.per_prototype[bake.index] if exact else bake.e_direct
         g = bake.grid
         meta = {"units": "photon energy density (sun irradiance 1 = 1)", "metersPerUnit": float(scene.meters_per_unit)}
         if params.bases == "sun":
@@ -226,7 +232,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         if not proto.editable:
             report.warnings.append(native_instance_warning(proto, "LB primvars"))
         edits.primvars += _vertex_indirect(proto, bake)
-        edits.primvars += leaf_primvar_edits(proto, "foliage:lb:direct", bake.e_direct, type="color3f")
+        edits.primvars += leaf_primvar_edits(proto, "foliage:lb:direct", e_direct, type="color3f")
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:scattered", bake.e_scattered, type="color3f")
         edits.attributes += baked_sun_attribute(scene, bake.index, "lb", sun.direction)
         if not r.converged:  # DESIGN.md section 3: a bake that failed its own accuracy check exits 1
@@ -239,7 +245,8 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
             "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source,
-            "e_direct_mean": bake.e_direct.mean(axis=0).tolist(), "e_scattered_mean": bake.e_scattered.mean(axis=0).tolist(),
+            "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": bake.e_scattered.mean(axis=0).tolist(),
+            "e_direct_volume_mean": bake.e_direct.mean(axis=0).tolist(),
         })
     progress.step(f"writing {out}")
     report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
@@ -249,5 +256,6 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         "resolution": first["resolution"], "bases": params.bases, "mlups": first["mlups"],
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "absorption_scale": params.absorption_scale, "prototypes": protos,
+        "direct": exact.stats() if exact else {"mode": "volume"},
     }
     return report.finish()

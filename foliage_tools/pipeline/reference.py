@@ -21,7 +21,6 @@ from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
-from foliage_tools.pipeline.smax import sky_radiance
 from foliage_tools.pipeline.world import World, assemble, prototype_means
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
@@ -59,7 +58,9 @@ class ReferenceParams:
     sun: tuple[float, float] | None = None
     """``--sun`` azimuth, elevation in degrees; None: the stage's sun or the default."""
     paths: int = 1_000_000
-    """Sun photon paths (``--paths``); the sky gets as many when the stage has a dome light."""
+    """Sun photon paths (``--paths``); with ``noise`` the most that will be traced."""
+    noise: float | None = None
+    """``--noise``: stop once the per-leaf E_scattered noise (relative RMS, two halves) is at or below it."""
     seed: int = 0
     """Seed: results are bitwise reproducible for a seed, whatever the number of workers."""
     workers: int | None = None
@@ -70,6 +71,8 @@ class ReferenceParams:
             raise UsageError(f"--paths must be at least 2 (the noise estimate needs two halves), got {self.paths}.")
         if self.seed < 0:
             raise UsageError(f"--seed must be >= 0, got {self.seed}.")
+        if self.noise is not None and not (0 < self.noise < 1):
+            raise UsageError(f"--noise must be between 0 and 1 (a relative RMS, e.g. 0.01 for 1 %), got {self.noise}.")
 
 
 @dataclass(frozen=True)
@@ -102,11 +105,13 @@ def bake_reference(scene: Scene, sun: Sun, params: ReferenceParams, progress: Pr
         leaf_area=world.leaf_area,
         optics=params.optics,
         sun_direction=sun.direction,
-        sky_radiance=np.asarray(sky_radiance(scene)),
         up=scene.up,
     )
-    rp = reference.ReferenceParams(paths=params.paths, seed=params.seed, workers=params.workers)
-    message = f"tracing {params.paths:,} sun paths (+ sky) through {len(world.triangles):,} triangles"
+    # Sun only: every per-leaf output (the reference's primvars, every method's E_direct / E_scattered)
+    # is the sun's light, so sky photons would cost time and change nothing written.
+    rp = reference.ReferenceParams(paths=params.paths, seed=params.seed, workers=params.workers, noise_target=params.noise)
+    goal = f" (until the noise is {params.noise:g})" if params.noise else ""
+    message = f"tracing up to {params.paths:,} sun paths{goal} through {len(world.triangles):,} triangles"
     result = reference.solve(inputs, rp, progress=_ProgressAdapter(progress, message))
     return ReferenceBake(world, result)
 
@@ -138,6 +143,12 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
     if res.truncated:
         report.warnings.append(f"{res.truncated} path(s) were abandoned after {reference.ReferenceParams().max_events} events.")
     report.warnings.extend(noise_warnings(int(res.paths), float(res.noise_rel)))
+    if params.noise is not None and res.noise_rel > params.noise:
+        report.warnings.append(
+            f"the reference reached --paths {params.paths:,} at E_scattered noise {res.noise_rel:.4f}, above --noise "
+            f"{params.noise:g}; raise --paths (the noise falls as 1/sqrt(paths): about "
+            f"{int(math.ceil(res.paths * (res.noise_rel / params.noise) ** 2 / 1e6)):,}M would do)."
+        )
     progress.step(f"writing {out}")
     report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
     report.stats = {
@@ -147,6 +158,8 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
         "workers": int(res.workers),
         "noise_rel": float(res.noise_rel),
         "noise_rel_total": float(res.noise_rel_total),
+        "noise_rel_direct": float(res.noise_rel_direct),
+        "noise_target": params.noise,
         "leaves": int(bake.world.offsets[-1]),
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(),

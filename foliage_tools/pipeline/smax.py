@@ -16,6 +16,7 @@ from foliage_tools import __version__
 from foliage_tools.geometry.sun import Sun, to_prototype_space
 from foliage_tools.lighting import boulanger, envelope
 from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
@@ -37,6 +38,8 @@ class SmaxParams:
     path: str = "auto"
     """``reference`` (the paper's O(N²) binning), ``fast`` (near sums + FFT far field) or ``auto``
     (reference below envelope.EnvelopeParams.auto_threshold leaves)."""
+    direct: DirectChoice = DirectChoice()
+    """``--direct``: what ``primvars:foliage:smax:direct`` holds (exact shadow rays by default, or eq. 5.7's own)."""
 
     def __post_init__(self) -> None:
         if self.path not in PATHS:
@@ -95,13 +98,16 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
     report, scene, sun = begin_bake("smax", path, out, params.sun, progress)
     edits = LayerEdits()
     protos = []
-    for bake in bake_smax(scene, sun, params, report.warnings, progress):
+    bakes = bake_smax(scene, sun, params, report.warnings, progress)
+    exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
+    for bake in bakes:
         proto, env, light = scene.prototypes[bake.index], bake.envelope, bake.lighting
+        e_direct = exact.per_prototype[bake.index] if exact else light.e_direct
         if not proto.editable:
             report.warnings.append(native_instance_warning(proto, "s_max primvars"))
         edits.primvars += leaf_primvar_edits(proto, "foliage:smax", env.smax, type="float", element_size=8)
         edits.primvars += leaf_primvar_edits(proto, "foliage:attenuation", env.attenuation, type="float", element_size=8)
-        edits.primvars += leaf_primvar_edits(proto, "foliage:smax:direct", light.e_direct, type="color3f")
+        edits.primvars += leaf_primvar_edits(proto, "foliage:smax:direct", e_direct, type="color3f")
         edits.primvars += leaf_primvar_edits(proto, "foliage:smax:scattered", light.e_scattered, type="color3f")
         edits.attributes += baked_sun_attribute(scene, bake.index, "smax", sun.direction)
         if proto.editable:
@@ -124,7 +130,8 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
                 "tau": float(env.tau),
                 "path_used": env.path,
                 "smax_mean": float(np.mean(env.smax)),
-                "e_direct_mean": np.mean(light.e_direct, axis=0).tolist(),
+                "e_direct_mean": np.mean(e_direct, axis=0).tolist(),
+                "e_direct_volume_mean": np.mean(light.e_direct, axis=0).tolist(),
                 "e_scattered_mean": np.mean(light.e_scattered, axis=0).tolist(),
                 "seconds": float(env.seconds + light.seconds),
             }
@@ -139,5 +146,6 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
         "optics": params.optics.as_dict(),
         "version": __version__,
         "prototypes": protos,
+        "direct": exact.stats() if exact else {"mode": "volume"},
     }
     return report.finish()

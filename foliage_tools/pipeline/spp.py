@@ -56,6 +56,7 @@ from foliage_tools.lighting import raydepth as rd
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, density_for_bake, vdb_path, volume_path
+from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
@@ -97,6 +98,9 @@ class SppParams:
     """With ``depth="rays"``: origins per leaf (seeded, uniform over its area); counts are averaged."""
     seed: int = 0
     """With ``depth="rays"``: seed of the ray origins (results are reproducible for a seed)."""
+    direct: DirectChoice = DirectChoice()
+    """``--direct``: what the ``{spp,sppg,ss}:direct`` primvars and the direct part of ``sppIrradiance`` hold
+    (exact shadow rays by default, or eq. 17's attenuated beam through the measured depths)."""
 
     def __post_init__(self) -> None:
         if not (4 <= self.resolution <= 512):
@@ -336,7 +340,9 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
     params = resolve_depth(scene, params)
     edits = LayerEdits()
     protos = []
-    for bake in bake_spp(scene, sun, params, report.warnings, progress):
+    bakes = bake_spp(scene, sun, params, report.warnings, progress)
+    exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
+    for bake in bakes:
         proto = scene.prototypes[bake.index]
         res = bake.result
         grids = (
@@ -355,11 +361,14 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         methods = {"spp": res.spp, "ss": res.ss}
         if params.gfactor:
             methods["sppg"] = res.sppg
+        e_direct = exact.per_prototype[bake.index] if exact else None
         for m, irr in methods.items():
-            edits.primvars += leaf_primvar_edits(proto, f"foliage:{m}:direct", irr.direct, type="color3f")
+            own = irr.direct if e_direct is None else e_direct
+            edits.primvars += leaf_primvar_edits(proto, f"foliage:{m}:direct", own, type="color3f")
             edits.primvars += leaf_primvar_edits(proto, f"foliage:{m}:scattered", irr.scattered, type="color3f")
         best = res.sppg if params.gfactor else res.spp
-        edits.primvars += _vertex_values(proto, best.direct + best.scattered, "color3f", "foliage:sppIrradiance")
+        best_direct = best.direct if e_direct is None else e_direct
+        edits.primvars += _vertex_values(proto, best_direct + best.scattered, "color3f", "foliage:sppIrradiance")
         edits.primvars += _vertex_values(proto, res.gfactor, "float", "foliage:gFactor")
         edits.attributes += baked_sun_attribute(scene, bake.index, "spp", sun.direction)
         protos.append({
@@ -376,5 +385,6 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         "depth": params.depth, "rays_per_leaf": params.rays_per_leaf if params.depth == "rays" else None,
         "gfactor": params.gfactor, "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "prototypes": protos,
+        "direct": exact.stats() if exact else {"mode": "volume"},
     }
     return report.finish()

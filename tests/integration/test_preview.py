@@ -369,13 +369,15 @@ def test_smax_method_evaluates_the_baked_envelope_like_the_bake(tmp_path):
     from pxr import Usd, UsdGeom
 
     from foliage_tools.lighting.optics import parse_leaf_optics
+    from foliage_tools.pipeline.direct import DirectChoice
     from foliage_tools.pipeline.preview import load_smax_data
     from foliage_tools.pipeline.smax import SmaxParams, run_smax
 
     src = crown_stage(tmp_path / "crown.usda", n=200)
     baked = tmp_path / "baked.usda"
     bake_optics = parse_leaf_optics(None)
-    run_smax(src, baked, SmaxParams(optics=bake_optics, sun=(45.0, 60.0)))
+    # --direct volume: the bake's own eq. 5.7 direct term, which the shader evaluates too
+    run_smax(src, baked, SmaxParams(optics=bake_optics, sun=(45.0, 60.0), direct=DirectChoice(mode="volume")))
     scene, _ = read_scene(baked)
     draw = DrawScene.from_scene(scene, None, load_smax_data(baked, scene))
     assert draw.methods == {"smax"}

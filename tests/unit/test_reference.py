@@ -112,22 +112,28 @@ def test_single_leaf_in_the_sun(normal):
     # Closed form (DESIGN.md section 3): an unshadowed leaf with unit normal n
     # under a sun s of irradiance 1 has E_direct = |n·s| (both faces summed,
     # one of them is lit), and nothing can scatter back onto it: E_scattered
-    # is exactly 0. E_direct counts sun photons hitting the leaf: Bin(N, p)
-    # with p = A |n·s| / A_source, so σ_rel = sqrt((1-p)/(N p)); bound 4σ.
+    # is exactly 0. Beam source: E_direct counts sun photons hitting the leaf:
+    # Bin(N, p) with p = A |n·s| / A_source, so σ_rel = sqrt((1-p)/(N p));
+    # bound 4σ. Surface source (the default): every drawn point lies on the
+    # leaf and sees the sun, so E_direct = N (A|n·s|/N) / A = |n·s| to rounding.
     inputs = single_leaf(normal)
     n_paths = 100_000
-    res = solve(inputs, ReferenceParams(paths=n_paths, seed=11))
     cos = abs(float(np.dot(unit(normal), inputs.sun_direction)))
-    p = inputs.leaf_area[0] * cos / res.incident[0]
+    beam = solve(inputs, ReferenceParams(paths=n_paths, seed=11, sun_sampling="beam"))
+    p = inputs.leaf_area[0] * cos / beam.incident[0]
     sigma = cos * binomial_sigma(p, n_paths)
-    assert np.all(np.abs(res.e_direct[0] - cos) <= 4 * sigma), (res.e_direct, cos, sigma)
-    assert res.e_direct[0, 0] == res.e_direct[0, 1] == res.e_direct[0, 2]  # white sun, one photon set
-    assert np.all(res.e_scattered == 0.0)
-    assert np.all(res.e_sky == 0.0) and np.all(res.e_sky_scattered == 0.0)
-    assert res.noise_rel == 0.0
+    assert np.all(np.abs(beam.e_direct[0] - cos) <= 4 * sigma), (beam.e_direct, cos, sigma)
     # every hit is a first hit of a sun photon
-    assert res.hits[0] == round(res.e_direct[0, 0] * inputs.leaf_area[0] / (res.incident[0] / n_paths))
-    assert res.paths == n_paths and res.sky_paths == 0 and res.truncated == 0
+    assert beam.hits[0] == round(beam.e_direct[0, 0] * inputs.leaf_area[0] / (beam.incident[0] / n_paths))
+    surface = solve(inputs, ReferenceParams(paths=n_paths, seed=11))
+    np.testing.assert_allclose(surface.e_direct[0], cos, rtol=1e-9)
+    assert surface.hits[0] == n_paths * ReferenceParams().split and surface.noise_rel_direct < 1e-9  # split first hits
+    for res in (beam, surface):
+        assert res.e_direct[0, 0] == res.e_direct[0, 1] == res.e_direct[0, 2]  # white sun, one photon set
+        assert np.all(res.e_scattered == 0.0)
+        assert np.all(res.e_sky == 0.0) and np.all(res.e_sky_scattered == 0.0)
+        assert res.noise_rel == 0.0
+        assert res.paths == n_paths and res.sky_paths == 0 and res.truncated == 0
 
 
 @pytest.mark.parametrize("normal", [(0.0, 0.0, 1.0), (1.0, 0.0, 0.2), (0.2, 0.3, -0.8)])
@@ -304,6 +310,63 @@ def test_noise_estimate_predicts_the_difference_of_independent_runs():
     observed = math.sqrt(2) * np.linalg.norm(x1 - x2) / np.linalg.norm(x1 + x2)
     predicted = 0.5 * (r1.noise_rel + r2.noise_rel)
     assert observed / predicted == pytest.approx(1.0, abs=0.25)
+
+
+def test_noise_estimates_of_direct_and_total_predict_the_difference_of_independent_runs():
+    # As above, for E_direct (the surface source's stratified first hits) and the total. Over 6 seed
+    # pairs the ratios measured 0.9-1.1; tolerance ±30 % (a wrong normalisation is off by √2 or 2).
+    rng = np.random.default_rng(4)
+    inputs = crown(400, rng, side=0.12, optics=LeafOptics(0.45, 0.45, 0.3))
+    ratios_d, ratios_t = [], []
+    for s in range(3):
+        r1 = solve(inputs, ReferenceParams(paths=40_000, batch_size=1 << 12, seed=2 * s))
+        r2 = solve(inputs, ReferenceParams(paths=40_000, batch_size=1 << 12, seed=2 * s + 1))
+        for x1, x2, n1, n2, out in (
+            (r1.e_direct, r2.e_direct, r1.noise_rel_direct, r2.noise_rel_direct, ratios_d),
+            (r1.e_direct + r1.e_scattered, r2.e_direct + r2.e_scattered, r1.noise_rel_total, r2.noise_rel_total, ratios_t),
+        ):
+            out.append(math.sqrt(2) * np.linalg.norm(x1 - x2) / np.linalg.norm(x1 + x2) / (0.5 * (n1 + n2)))
+    assert np.mean(ratios_d) == pytest.approx(1.0, abs=0.3), ratios_d
+    assert np.mean(ratios_t) == pytest.approx(1.0, abs=0.3), ratios_t
+
+
+def test_surface_source_and_expected_value_absorption_agree_with_the_analog_beam():
+    # The default sampling (first hits drawn on the surfaces, absorption by expected value while a
+    # photon is bright, splitting at the first hit) against the analog one this reference was
+    # validated with (photons from a rectangle over the scene, absorption as the Russian roulette).
+    # Both are unbiased estimates of the same tallies, so leaf by leaf their relative RMS difference
+    # is sqrt(noise_a² + noise_b²) (each from its own two halves); a bias of a few % on top fails.
+    # Bound 1.25x that (the noise estimates' own spread at ~1800 leaf-channel values is a few %).
+    rng = np.random.default_rng(12)
+    inputs = crown(200, rng, side=0.15, optics=LeafOptics((0.45, 0.2, 0.05), (0.4, 0.3, 0.1), 0.4))
+    new = solve(inputs, ReferenceParams(paths=300_000, seed=1))
+    old = solve(inputs, ReferenceParams(paths=300_000, seed=2, sun_sampling="beam", survival_weight=2.0))
+    for name, noise in (("e_scattered", "noise_rel"), ("e_direct", "noise_rel_direct")):
+        a, b = getattr(new, name), getattr(old, name)
+        diff = np.linalg.norm(a - b) / np.linalg.norm(b)
+        assert diff <= 1.25 * math.hypot(getattr(new, noise), getattr(old, noise)), (name, diff)
+        # and the means agree within 4σ of the mean (σ of the per-leaf values / sqrt(leaves), at most)
+        assert abs(a.mean() / b.mean() - 1) <= 4 * math.hypot(getattr(new, noise), getattr(old, noise)) / math.sqrt(a.shape[0])
+    # the new sampling is the one worth having: at the same paths, its E_scattered noise is much lower
+    assert new.noise_rel < 0.6 * old.noise_rel and new.noise_rel_direct < 0.8 * old.noise_rel_direct
+
+
+def test_stops_at_a_noise_target_deterministically():
+    rng = np.random.default_rng(13)
+    inputs = crown(150, rng, optics=LeafOptics(0.3, 0.3, 0.2))
+    params = ReferenceParams(paths=4_000_000, seed=3, batch_size=1 << 13, noise_target=0.05)
+    a, b = solve(inputs, params), solve(inputs, params)
+    assert a.noise_rel <= 0.05 < solve(inputs, ReferenceParams(paths=8 * (1 << 13), seed=3, batch_size=1 << 13)).noise_rel
+    assert a.paths < 4_000_000 and a.paths % (2 * (1 << 13)) == 0  # an even number of whole batches
+    np.testing.assert_array_equal(a.e_scattered, b.e_scattered)
+    assert a.paths == b.paths
+    # the same as a run of that many paths: stopping picks a prefix of the batches, nothing else
+    fixed = solve(inputs, ReferenceParams(paths=a.paths, seed=3, batch_size=1 << 13))
+    np.testing.assert_array_equal(a.e_scattered, fixed.e_scattered)
+    np.testing.assert_array_equal(a.e_direct, fixed.e_direct)
+    # an unreachable target traces every path and reports the noise it reached
+    c = solve(inputs, ReferenceParams(paths=40_000, seed=3, batch_size=1 << 13, noise_target=1e-6))
+    assert c.paths == 40_000 and c.noise_rel > 1e-6
 
 
 def test_deterministic_for_a_seed_whatever_the_workers():
@@ -508,14 +571,24 @@ def test_an_exception_in_progress_stops_the_run():
     assert time.perf_counter() - start < 5.0
 
 
-def test_mirror_symmetric_crown_under_a_zenith_sun_absorbs_alike_on_both_sides():
+def _launch_weight(inputs: ReferenceInputs, res, n: int, sampling: str) -> float:
+    """Power per sun path and channel: the beam rectangle's area / n, or Σ A|n·s| / n for the surface source."""
+    if sampling == "beam":
+        return float(res.incident[0]) / n
+    tri = inputs.triangles
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return float(np.sum(0.5 * np.abs(cross @ inputs.sun_direction))) / n
+
+
+@pytest.mark.parametrize("sampling", ["surface", "beam"])
+def test_mirror_symmetric_crown_under_a_zenith_sun_absorbs_alike_on_both_sides(sampling):
     """DESIGN.md section 4's symmetry check for the Monte Carlo reference.
 
     120 cards in a ball (x > 0 side) and their mirror images in x -> -x, a zenith
     sun: the two halves absorb the same power up to noise. Per sun path, the
     difference of the halves' absorbed channel-c power lies in [-3 w0, 3 w0]
-    (w0 launched), so its sum over n paths has σ <= sqrt(n) 3 w0 (Popoviciu); bound 4σ.
-    An x-sign error anywhere in the transport shows as a many-σ imbalance.
+    (w0 launched per path and channel), so its sum over n paths has σ <= sqrt(n) 3 w0
+    (Popoviciu); bound 4σ. An x-sign error anywhere in the transport shows as a many-σ imbalance.
     """
     rng = np.random.default_rng(5)
     half = 120
@@ -527,15 +600,52 @@ def test_mirror_symmetric_crown_under_a_zenith_sun_absorbs_alike_on_both_sides()
     inputs = ReferenceInputs(triangles=tris_all, leaf_of_triangle=leaf, leaf_area=np.full(2 * half, 0.04),
                              optics=LeafOptics((0.45, 0.3, 0.1), (0.45, 0.2, 0.05)), sun_direction=(0.0, 0.0, 1.0))
     n = 200_000
-    res = solve(inputs, ReferenceParams(paths=n, seed=4))
-    w0 = res.incident[0] / n
+    res = solve(inputs, ReferenceParams(paths=n, seed=4, sun_sampling=sampling, survival_weight=2.0 if sampling == "beam" else 0.1))
+    w0 = _launch_weight(inputs, res, n, sampling)
     right, left = res.absorbed[:half].sum(axis=0), res.absorbed[half:].sum(axis=0)
     assert np.all(right > 0.05 * res.incident)  # the crown does absorb
     sigma = math.sqrt(n) * 3.0 * w0
     assert np.all(np.abs(right - left) <= 4 * sigma), (right, left, sigma)
+    if sampling == "surface":
+        # expected-value absorption spreads a path's deposit over many events, far inside Popoviciu's
+        # bound: the demonstration below that the bound bites is the analog beam's
+        return
     # and the bound can fail: the same crown under a low sun from +x (the x > 0 half shades the other) is many σ off
     tilted = ReferenceInputs(triangles=tris_all, leaf_of_triangle=leaf, leaf_area=np.full(2 * half, 0.04),
                              optics=inputs.optics, sun_direction=(math.cos(math.radians(30)), 0.0, math.sin(math.radians(30))))
-    lit = solve(tilted, ReferenceParams(paths=n, seed=4))
-    w1 = lit.incident[0] / n
+    lit = solve(tilted, ReferenceParams(paths=n, seed=4, sun_sampling=sampling, survival_weight=2.0))
+    w1 = _launch_weight(tilted, lit, n, sampling)
     assert np.all(lit.absorbed[:half].sum(axis=0) - lit.absorbed[half:].sum(axis=0) > 4 * math.sqrt(n) * 3.0 * w1)
+
+@pytest.mark.slow
+def test_the_issues_uniform_layer_made_periodic_matches_the_exact_solver():
+    # The issue's layer (examples/make_layer.py: 10 x 10 x 1.5 m, 30 000 cards of 0.1 m, uniform
+    # normals, LAI 3) as one cell of an infinite layer, r = t = 0.45, sun at elevation 60°: the
+    # plane-parallel case of the exact solver (tau = 1.5, bi-Lambertian canopy phase). Per depth bin
+    # (6000 leaves each) the mean E_scattered within 3 % (the issue's target; measured -1.1 ... +0.1 %
+    # at 2M paths, bin noise ~0.3 %; the rest is this layout and the leaves' finite size).
+    # The finite 10 x 10 layer is *not* this case: scattered light leaves through its sides, and its
+    # inner region (|x|, |y| < 4 m) measured -4.7 ... -8.0 % against the same solver (|x|, |y| < 3 m:
+    # -2.4 ... -4.6 %), the same code and layout, so that deficit is the layer's edges.
+    import sys
+    from pathlib import Path
+
+    from foliage_tools.lighting.phase import canopy_bilambertian_phase
+    from foliage_tools.lighting.plane_parallel import solve_slab
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "examples"))
+    from make_layer import build_layer
+
+    g = build_layer(seed=1)
+    tri, ids = g.triangles()
+    el = math.radians(60.0)
+    sun = (math.cos(el), 0.0, math.sin(el))
+    inputs = ReferenceInputs(tri, ids, np.full(g.leaf_count, 0.01), LeafOptics(0.45, 0.45), sun,
+                             period=(10.0, 10.0), cell_origin=(-5.0, -5.0))
+    res = solve(inputs, ReferenceParams(paths=2_000_000, seed=0))
+    depth = np.clip(0.5 * 3.0 * (1.5 - g.centres[:, 2]) / 1.5, 0.0, 1.5)
+    sol = solve_slab(tau=1.5, omega=0.9, mu0=sun[2], phase=canopy_bilambertian_phase(reflectance=0.45, transmittance=0.45),
+                     depths=depth)
+    ratio = bin_means(res.e_scattered, depth, np.linspace(0.0, 1.5, 6)) / bin_means(
+        np.repeat(sol.actinic_flux_diffuse[:, None] / 2, 3, axis=1), depth, np.linspace(0.0, 1.5, 6))
+    assert np.all(np.abs(ratio - 1) < 0.03), ratio
