@@ -352,11 +352,16 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "(tree_small 0.22 vs 0.33, Webots oak 0.24 vs 0.41 rel. RMS) at 1.5-2.5x the bake time on those 1.5k-2k-leaf trees.")
 @click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True,
               help="With --depth rays: origins per leaf, uniform over its area (seeded); more rays, less count noise (1/sqrt).")
+@click.option("--gather", type=click.IntRange(min=0), default=0, show_default=True, metavar="N",
+              help="Final gather: N rays per leaf (a multiple of 4) over both hemispheres through the actual leaves; the "
+                   "light they see is scattered once, exactly (a shadow ray at the hit point), plus SPPG's scattered light "
+                   "at the hit leaf for the later bounces. Replaces primvars:foliage:sppg:scattered (spp with --no-gfactor). "
+                   "1024 rays: ~7 % sampling error per leaf; 0: off.")
 @direct_options
 @bake_options
 @common_options
 def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, depth: str, rays_per_leaf: int,
-        direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+        gather: int, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
         as_json: bool, quiet: bool, verbose: int) -> None:
     """Simplified plane-parallel scattering with the G-factor (shinya2013).
 
@@ -383,7 +388,7 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, directions=directions, gfactor=not no_gfactor, refine=refine,
-            depth=depth, rays_per_leaf=rays_per_leaf, direct=direct_choice(direct_mode, direct_samples),
+            depth=depth, rays_per_leaf=rays_per_leaf, direct=direct_choice(direct_mode, direct_samples), gather=gather,
         )
 
         def render(report) -> None:

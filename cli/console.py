@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import sys
 
 from rich.console import Console
@@ -36,6 +37,8 @@ class RichProgress:
 
     def step(self, message: str, total: int | None = None) -> None:
         if self._progress is None:
+            # no bar (stderr is not a terminal, or -q): the steps still reach a log (-v) line by line
+            logging.getLogger("foliage").info(message)
             return
         if self._task is not None:
             self._progress.update(self._task, visible=False)

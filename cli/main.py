@@ -8,6 +8,7 @@ their own modules and are added to the group at the bottom.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
@@ -17,7 +18,7 @@ from rich.table import Table
 from foliage_tools import __version__
 from foliage_tools.cli import console
 from foliage_tools.cli.common import OUT, SCENE, common_options, execute, run, setup_logging
-from foliage_tools.errors import EXIT_FINDINGS
+from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -222,9 +223,9 @@ def plan(scene: Path, resolution: int, bases: str, depth: str, rays_per_leaf: in
             console.stdout.print(table)
             t = s["seconds_estimate"]
             times = Table(title="estimated seconds (rates measured on a 2-core machine; scale to yours)")
-            for col in ("density", "smax", "spp", "lb", "reference", "LB peak memory"):
+            for col in ("density", "smax", "spp", "lb", "direct (each of smax, spp, lb)", "reference", "LB peak memory"):
                 times.add_column(col, justify="right")
-            times.add_row(*(f"{t[k]:.3g}" for k in ("density", "smax", "spp", "lb", "reference")),
+            times.add_row(*(f"{t[k]:.3g}" for k in ("density", "smax", "spp", "lb", "direct", "reference")),
                           f"{s['peak_memory_bytes'] / 1e9:.2f} GB")
             console.stdout.print(times)
 
@@ -245,7 +246,20 @@ _add_commands()
 
 
 def main() -> None:
-    cli(prog_name="foliage")
+    """The ``foliage`` command: click's own handling, except that an interrupt anywhere is exit 130.
+
+    click's standalone mode turns Ctrl-C / SIGINT outside a command body (while a command's modules are
+    still being imported, say) into "Aborted!" and exit 1; DESIGN.md section 3 says 130.
+    """
+    try:
+        code = cli.main(prog_name="foliage", standalone_mode=False)
+    except click.exceptions.Abort:
+        console.stderr.print("interrupted; no output was written.")
+        code = EXIT_INTERRUPTED
+    except click.ClickException as exc:
+        exc.show()
+        code = exc.exit_code
+    sys.exit(code or 0)
 
 
 if __name__ == "__main__":

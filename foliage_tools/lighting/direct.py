@@ -16,16 +16,14 @@ K rays and no method's volume model enters.
 
 Sampling (stratified, seeded)
 -----------------------------
-The K points of a leaf are two independent halves of K/2. Each half is a
-randomly shifted rank-1 lattice on the unit square (Roberts' R2 sequence,
-generator (1/φ₂, 1/φ₂²), φ₂ the plastic number, Cranley–Patterson shift
-drawn per leaf and half): the first coordinate picks the triangle by the
-leaf's cumulative triangle area and is rescaled to [0, 1) inside it, the pair
-is then mapped onto the triangle by Heitz's low-distortion map. Every point
-is uniform over the leaf's area (a random shift makes each point uniform), so
-each half's mean is an unbiased estimate; the lattice spreads the points
-evenly, so a leaf half in shadow is resolved with far less noise than K
-independent points would give.
+The K points of a leaf are two independent halves of K/2, each a randomly
+shifted rank-1 lattice mapped onto the leaf's area
+(:class:`foliage_tools.geometry.leafpoints.LeafSampler`): every point is
+uniform over the leaf, so each half's mean is an unbiased estimate, and the
+lattice spreads the points evenly, so a leaf half in shadow is resolved with
+less noise than K independent points would give (measured on tree_small's
+0.1 m cards, mostly half-shadowed: relative RMS error 14 % at K = 16, 5 % at
+64, 2 % at 256, against independent points' K^-1/2).
 
 Noise estimate: the halves are independent, so as in
 :mod:`foliage_tools.lighting.reference`, the relative RMS sampling error of
@@ -42,7 +40,6 @@ files, no printing.
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from collections.abc import Callable
@@ -51,13 +48,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from foliage_tools.geometry.leafpoints import LeafSampler, check_scene, lattice
 from foliage_tools.geometry.rays import PeriodicRayScene, RayScene
 
 __all__ = ["DirectInputs", "DirectParams", "DirectResult", "solve"]
-
-#: Roberts' R2 generator: 1/φ₂ and 1/φ₂² with φ₂ the real root of x³ = x + 1 (the plastic number).
-_PLASTIC = 1.324717957244746
-_R2 = np.array([1.0 / _PLASTIC, 1.0 / _PLASTIC**2])
 
 #: Leaves per unit of work (seeding, threading): bounds the memory of one chunk
 #: (K points × 6 doubles each) and fixes the random streams whatever the workers.
@@ -82,29 +76,13 @@ class DirectInputs:
     """Lower (x, y) corner of the periodic cell."""
 
     def __post_init__(self) -> None:
-        tri = np.asarray(self.triangles, dtype=np.float64)
-        if tri.ndim != 3 or tri.shape[1:] != (3, 3):
-            raise ValueError(f"triangles must have shape (T, 3, 3), got {tri.shape}")
-        if not np.all(np.isfinite(tri)):
-            raise ValueError("triangles contain NaN or infinite coordinates")
-        leaf = np.asarray(self.leaf_of_triangle)
-        if leaf.shape != (tri.shape[0],) or not np.issubdtype(leaf.dtype, np.integer):
-            raise ValueError(f"leaf_of_triangle must be (T,) = ({tri.shape[0]},) integers, got {leaf.shape} {leaf.dtype}")
-        n = int(self.n_leaves)
-        if n < 0 or (leaf.size and (leaf.min() < -1 or leaf.max() >= n)):
-            raise ValueError(f"leaf_of_triangle must be -1 (wood) or below n_leaves = {n}")
-        sun = np.asarray(self.sun_direction, dtype=np.float64).reshape(-1)
-        norm = float(np.linalg.norm(sun)) if sun.shape == (3,) else 0.0
-        if sun.shape != (3,) or not math.isfinite(norm) or norm == 0.0:
-            raise ValueError(f"sun_direction must be 3 finite numbers, not all zero, got {self.sun_direction!r}")
+        tri, leaf, n, sun = check_scene(self.triangles, self.leaf_of_triangle, self.n_leaves, self.sun_direction)
         if self.period is not None and sun[2] <= 0.0:
             raise ValueError(f"a periodic layer needs the sun above the horizon, got sun_direction = {tuple(sun)}")
-        for a in (tri, leaf):
-            a.flags.writeable = False
         object.__setattr__(self, "triangles", tri)
-        object.__setattr__(self, "leaf_of_triangle", leaf.astype(np.int64))
+        object.__setattr__(self, "leaf_of_triangle", leaf)
         object.__setattr__(self, "n_leaves", n)
-        object.__setattr__(self, "sun_direction", sun / norm)
+        object.__setattr__(self, "sun_direction", sun)
 
 
 @dataclass(frozen=True)
@@ -146,21 +124,6 @@ class DirectResult:
     """Wall time of :func:`solve`."""
 
 
-def _leaf_table(tri: np.ndarray, leaf: np.ndarray, n_leaves: int):
-    """Triangles of positive area sorted by leaf: (order, cumulative area, per-leaf start/stop/area)."""
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    ok = (leaf >= 0) & (area > 0.0)
-    idx = np.flatnonzero(ok)
-    order = idx[np.argsort(leaf[idx], kind="stable")]
-    cum = np.cumsum(area[order])
-    owner = leaf[order]
-    start = np.searchsorted(owner, np.arange(n_leaves), side="left")
-    stop = np.searchsorted(owner, np.arange(n_leaves), side="right")
-    base = np.where(start > 0, cum[np.maximum(start - 1, 0)] if cum.size else 0.0, 0.0)
-    total = np.where(stop > start, cum[np.maximum(stop - 1, 0)] - base if cum.size else 0.0, 0.0)
-    return order, cum, start, stop, base, total
-
-
 def solve(
     inputs: DirectInputs,
     params: DirectParams = DirectParams(),
@@ -190,17 +153,16 @@ def solve(
     workers = int(params.workers) if params.workers is not None else max(1, os.cpu_count() or 1)
     if inputs.period is not None:
         scene = PeriodicRayScene(tri, period=inputs.period, origin=inputs.cell_origin)
-        normals = scene.normals
     else:
         scene = RayScene(tri)
-        normals = scene.normals
+    normals = scene.normals
     offset = scene.offset_distance()
     cos_s = normals @ sun
-    order, cum, start, stop, base, total = _leaf_table(tri, leaf, n_leaves)
-    has_area = total > 0.0
+    sampler = LeafSampler(tri, leaf, n_leaves)
+    has_area = sampler.has_area
     chunks = [(a, min(a + _CHUNK_LEAVES, n_leaves)) for a in range(0, n_leaves, _CHUNK_LEAVES)]
     seeds = np.random.SeedSequence(params.seed).spawn(len(chunks))
-    lattice = np.mod(np.arange(half)[:, None] * _R2[None, :], 1.0)  # (K/2, 2), before the shift
+    base_lattice = lattice(half)  # (K/2, 2), before the shift
 
     def run(c: int) -> tuple[np.ndarray, np.ndarray]:
         a, b = chunks[c]
@@ -211,25 +173,9 @@ def solve(
         lit = np.zeros(b - a)
         if ids.size == 0:
             return out, lit
-        shift = rng.random((ids.size, 2, 2))  # (leaf, half, coordinate)
-        u = np.mod(lattice[None, None, :, :] + shift[:, :, None, :], 1.0)  # (n, 2, K/2, 2)
-        u1 = u[..., 0].reshape(ids.size, k)
-        u2 = u[..., 1].reshape(ids.size, k)
-        # the first coordinate walks the leaf's cumulative area: which triangle, and where in it
-        target = base[ids, None] + u1 * total[ids, None]
-        pos = np.searchsorted(cum, target, side="right")
-        pos = np.clip(pos, start[ids, None], stop[ids, None] - 1)
-        t_lo = np.where(pos > 0, cum[np.maximum(pos - 1, 0)], 0.0)
-        t_area = cum[pos] - t_lo
-        s = np.clip((target - t_lo) / np.where(t_area > 0, t_area, 1.0), 0.0, 1.0)
-        # Heitz 2019, "A Low-Distortion Map Between Triangle and Square": area-preserving and keeps the
-        # lattice's stratification far better than folding the square along its diagonal
-        upper = u2 > s
-        b0 = np.where(upper, 0.5 * s, s - 0.5 * u2)
-        b1 = np.where(upper, u2 - 0.5 * s, 0.5 * u2)
-        t = order[pos]  # (n, K) triangle of each point
-        v2 = tri[t, 2]
-        p = v2 + b0[..., None] * (tri[t, 0] - v2) + b1[..., None] * (tri[t, 1] - v2)
+        shift = rng.random((ids.size, 2, 1, 2))  # (leaf, half, -, coordinate)
+        u = np.mod(base_lattice[None, None, :, :] + shift, 1.0).reshape(ids.size, k, 2)
+        t, p = sampler.points(ids, u)  # (n, K) triangle and (n, K, 3) point of each sample
         c_s = cos_s[t]
         toward = c_s != 0.0
         side = np.where(c_s >= 0.0, 1.0, -1.0)[..., None] * normals[t]

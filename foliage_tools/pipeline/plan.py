@@ -21,6 +21,7 @@ from foliage_tools.lighting.envelope import AUTO_FAST_THRESHOLD
 from foliage_tools.lighting.lb import memory_bytes
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import density_grid
+from foliage_tools.pipeline.direct import auto_samples
 from foliage_tools.pipeline.report import Report
 from foliage_tools.pipeline.spp import DEPTH_PATHS, depth_path
 from foliage_tools.scene.read import read_scene
@@ -44,6 +45,9 @@ SPP_RAYS_PER_S = 6.5e5
 #: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py: 3.9e6 on a 2k-leaf crown;
 #: `foliage bench` on the example, setup included: 8M paths in 3.8 s).
 REFERENCE_PATHS_PER_S = 2.0e6
+#: Exact direct sunlight (--direct rays): shadow rays per second on 2 threads, BVH build included
+#: (bench_direct.py, generated lobed trees).
+DIRECT_RAYS_PER_S = 1.2e6
 
 
 def available_memory() -> float:
@@ -122,10 +126,13 @@ def plan(path: Path, params: PlanParams) -> Report:
             "lower --resolution, or use --bases sun (1/18 of the memory)."
         )
     total_s["reference"] = params.reference_paths / REFERENCE_PATHS_PER_S
+    # --direct rays (the default): once in each of smax, spp and lb, over every leaf of every instance
+    direct_rays = leaves_total * auto_samples(leaves_total)
+    total_s["direct"] = direct_rays / DIRECT_RAYS_PER_S
     report.stats = {
         "resolution": params.resolution, "bases": params.bases, "depth": depth,
         "prototypes": protos, "instances": len(scene.instances), "leaves_total": int(leaves_total),
-        "seconds_estimate": total_s, "peak_memory_bytes": peak,
+        "seconds_estimate": total_s, "peak_memory_bytes": peak, "direct_rays": int(direct_rays),
         "note": "seconds are estimates from rates measured on a 2-core machine (foliage_tools/pipeline/plan.py)",
     }
     return report.finish()

@@ -57,6 +57,7 @@ from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, density_for_bake, vdb_path, volume_path
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
+from foliage_tools.pipeline.gather import bake_gather, check_gather
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
@@ -101,6 +102,10 @@ class SppParams:
     direct: DirectChoice = DirectChoice()
     """``--direct``: what the ``{spp,sppg,ss}:direct`` primvars and the direct part of ``sppIrradiance`` hold
     (exact shadow rays by default, or eq. 17's attenuated beam through the measured depths)."""
+    gather: int = 0
+    """``--gather N``: rays per leaf of a final gather over the actual leaves (pipeline.gather) whose first
+    bounce is exact and whose later bounces come from SPPG (SPP with ``--no-gfactor``); its result replaces
+    that method's ``:scattered`` primvar and the scattered part of ``sppIrradiance``. 0: off."""
 
     def __post_init__(self) -> None:
         if not (4 <= self.resolution <= 512):
@@ -111,6 +116,7 @@ class SppParams:
             raise UsageError(f"--depth must be one of {', '.join(DEPTH_PATHS)}, got {self.depth!r}.")
         if self.rays_per_leaf < 1:
             raise UsageError(f"--rays-per-leaf must be >= 1, got {self.rays_per_leaf}.")
+        check_gather(self.gather)
 
 
 @dataclass(frozen=True)
@@ -342,6 +348,11 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
     protos = []
     bakes = bake_spp(scene, sun, params, report.warnings, progress)
     exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
+    best_name = "sppg" if params.gfactor else "spp"
+    gathered = None
+    if params.gather:
+        gathered = bake_gather(scene, sun, params.optics, {b.index: getattr(b.result, best_name).scattered for b in bakes},
+                               params.gather, progress)
     for bake in bakes:
         proto = scene.prototypes[bake.index]
         res = bake.result
@@ -362,13 +373,16 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         if params.gfactor:
             methods["sppg"] = res.sppg
         e_direct = exact.per_prototype[bake.index] if exact else None
+        scattered = {m: irr.scattered for m, irr in methods.items()}
+        if gathered is not None:
+            scattered[best_name] = gathered.per_prototype[bake.index]
         for m, irr in methods.items():
             own = irr.direct if e_direct is None else e_direct
             edits.primvars += leaf_primvar_edits(proto, f"foliage:{m}:direct", own, type="color3f")
-            edits.primvars += leaf_primvar_edits(proto, f"foliage:{m}:scattered", irr.scattered, type="color3f")
-        best = res.sppg if params.gfactor else res.spp
+            edits.primvars += leaf_primvar_edits(proto, f"foliage:{m}:scattered", scattered[m], type="color3f")
+        best = getattr(res, best_name)
         best_direct = best.direct if e_direct is None else e_direct
-        edits.primvars += _vertex_values(proto, best_direct + best.scattered, "color3f", "foliage:sppIrradiance")
+        edits.primvars += _vertex_values(proto, best_direct + scattered[best_name], "color3f", "foliage:sppIrradiance")
         edits.primvars += _vertex_values(proto, res.gfactor, "float", "foliage:gFactor")
         edits.attributes += baked_sun_attribute(scene, bake.index, "spp", sun.direction)
         protos.append({
@@ -376,7 +390,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
             "gfactor_mean": float(np.mean(res.gfactor)), "seconds": bake.seconds,
             "seconds_depths": bake.seconds_depths, "instances": bake.instances, "neighbours": bake.neighbours,
             "density": bake.density_source,
-            "e_scattered_mean": {m: irr.scattered.mean(axis=0).tolist() for m, irr in methods.items()},
+            "e_scattered_mean": {m: v.mean(axis=0).tolist() for m, v in scattered.items()},
         })
     progress.step(f"writing {out}")
     report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
@@ -386,5 +400,6 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         "gfactor": params.gfactor, "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
+        "gather": {**gathered.stats(), "on": best_name} if gathered is not None else None,
     }
     return report.finish()

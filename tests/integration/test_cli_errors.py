@@ -163,16 +163,20 @@ def test_absurd_voxel_size_is_a_usage_error_not_a_memory_error(tmp_path, simple_
 
 def test_interrupt_exits_130_and_leaves_no_output(tmp_path):
     import signal
-    import time
 
     example = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
     out = tmp_path / "r.usda"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "foliage_tools", "reference", str(example), "-o", str(out), "--paths", "400000000"],
+        [sys.executable, "-m", "foliage_tools", "reference", str(example), "-o", str(out), "--paths", "400000000", "-v"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
-    # wait until the tracing has started (the scene is read in well under a few seconds)
-    time.sleep(6)
+    # -v logs each step on stderr (no terminal, no bar): interrupt once the tracing has started
+    seen = []
+    for line in proc.stderr:
+        seen.append(line)
+        if "tracing" in line:
+            break
+    assert any("tracing" in line for line in seen), seen
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err

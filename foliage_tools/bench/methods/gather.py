@@ -1,0 +1,30 @@
+"""Final gather over the actual leaves on LB and SPPG (``--gather``) as bench methods."""
+
+from foliage_tools.bench.registry import BenchContext, MethodOutput, register
+from foliage_tools.pipeline.gather import bake_gather
+from foliage_tools.pipeline.lb import LBBakeParams, bake_lb
+from foliage_tools.pipeline.report import Silent
+from foliage_tools.pipeline.spp import SppParams, bake_spp
+
+#: Gather rays per leaf of the bench rows (the default of ``--gather`` when it is asked for).
+RAYS = 1024
+#: LB lattice under the gather: the volume method only supplies the second and later bounces.
+LB_RESOLUTION = 32
+
+
+@register("lb+gather", f"final gather ({RAYS} rays per leaf) on LB at {LB_RESOLUTION}: exact first bounce, LB for the rest")
+def run_lb(ctx: BenchContext) -> MethodOutput:
+    bakes = bake_lb(ctx.scene, ctx.sun, LBBakeParams(optics=ctx.optics, sun=(ctx.sun.azimuth, ctx.sun.elevation),
+                                                     resolution=LB_RESOLUTION), ctx.warnings, Silent())
+    g = bake_gather(ctx.scene, ctx.sun, ctx.optics, {b.index: b.e_scattered for b in bakes}, RAYS, Silent())
+    return MethodOutput(e_direct={b.index: b.e_direct for b in bakes},
+                        e_scattered={b.index: g.per_prototype[b.index] for b in bakes}, stats=g.stats())
+
+
+@register("spp+gather", f"final gather ({RAYS} rays per leaf) on SPPG: exact first bounce, SPPG for the rest")
+def run_spp(ctx: BenchContext) -> MethodOutput:
+    bakes = bake_spp(ctx.scene, ctx.sun, SppParams(optics=ctx.optics, sun=(ctx.sun.azimuth, ctx.sun.elevation)),
+                     ctx.warnings, Silent())
+    g = bake_gather(ctx.scene, ctx.sun, ctx.optics, {b.index: b.result.sppg.scattered for b in bakes}, RAYS, Silent())
+    return MethodOutput(e_direct={b.index: b.result.sppg.direct for b in bakes},
+                        e_scattered={b.index: g.per_prototype[b.index] for b in bakes}, stats=g.stats())
