@@ -89,6 +89,38 @@ through every coincidence of rates (c = k, c = 1, c = k ± 2k ...). The result
 is ``iso + beam · p(s · s0) / 4π``: ``iso`` depends on μ only, ``beam``
 multiplies the phase function at the scattering angle from the sun.
 
+Accuracy: why SPP loses half the scattered light of a high sun (issue #15)
+-------------------------------------------------------------------------
+This is the model's error, not a coefficient's. Derivation: with every
+diffuse ray at cosine ±μ0 (eq. (8)) the hemispherical (horizontal) fluxes of
+the SPP field are F↓ = μ0 a, F↑ = μ0 b, and eq. (i) is the exact energy
+balance d(F↓ - F↑)/dt = -(1 - ω)(A + B) (t = μ0 u), so SPP gets the *fluxes*
+about right (within -5 .. +13 % of the exact F↓ + F↑ for τ = 1.5, r = t = 0.1
+to 0.45, elevations 30-85°). But its scalar (actinic) flux, the path length of
+light per unit volume, is then A + B - e^{-u} = (F↓ + F↑)/μ0, whereas the
+exact diffuse field is nearly isotropic, ∫ I dΩ ≈ 2 (F↓ + F↑) (exactly 2 for
+isotropic radiance; 1.9-2.7 measured). Per-leaf E_scattered (both faces,
+uniform normals) is half the scalar flux, so
+
+    E_spp / E_exact ≈ (F_spp / F_exact) · 2(F↓ + F↑)/∫I dΩ |_exact · 1/(2μ0),
+
+~0.5 at μ0 = 0.87 and ~0.9-1.1 at μ0 = 1/2. Measured on five depth bins of
+τ = 1.5 (r = t = 0.45): elevation 60° -52, -52, -50, -47, -40 %; 85° -57, -59,
+-57, -54, -48 %; 30° -18 .. 0 % (r = t = 0.1: -17 .. +9 %). Eq. (10)'s uniform
+hemispheres contradict eq. (8) (a uniform radiance a/2π carries flux a/2, not
+μ0 a); reading the SPP solution as fluxes instead, E = μ0 (a + b), moves the
+error to -17 .. +4 % (60°, r = t = 0.45) but +8 .. +57 % (60°, r = t = 0.1).
+No reading of eqs. (8)-(22) gets within ~10 % at every depth, sun and albedo;
+the leaf conversion (a + b)/2, T, R (= 1/2 for r = t) and the 1/4π
+normalisation are exact (tests). shinya2013 Table 1 still reports 1.3-5.5 %
+because it divides an RMS *radiance* difference by the total *power*
+(∫ I dΩ including the beam, i.e. 4π times a radiance): the same SPP fields
+score 1.8-4.7 % in that metric (benchmarks/bench_spp_tables.py) and 20-48 %
+as a relative error of the scalar flux. The per-leaf default of
+:func:`~foliage_tools.lighting.gfactor.solve_sppg` is therefore the exact
+slab solution (:mod:`~foliage_tools.lighting.slab_table`); this closed form
+stays available as ``SPPGParams(model="spp")``.
+
 Differences from the printed paper (each checked by substitution in the tests)
 -----------------------------------------------------------------------------
 * eq. (9)/(10)/(11): with U± = 1/2π as in eq. (10), T = ∫U+ p dΩ' gives

@@ -87,7 +87,7 @@ def plan(path: Path, params: PlanParams) -> Report:
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
     leaves_total = sum(scene.prototypes[inst.prototype].leaves.count for inst in scene.instances)
-    depth = depth_path(scene, params.depth)
+    depth = depth_path(scene, params.depth)  # for the default --direct rays
     protos = []
     total_s = {"density": 0.0, "smax": 0.0, "spp": 0.0, "lb": 0.0}
     peak = 0.0

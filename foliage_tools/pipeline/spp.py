@@ -90,11 +90,18 @@ class SppParams:
     """False (``--no-gfactor``): the SPP bake without G; the sppg primvars are then not written."""
     refine: bool = False
     """Integrate the refined radiance of appendix A.1 for the sun's scattered light."""
+    model: str | None = None
+    """``--model``: ``exact`` (the exact slab solution per leaf, lighting.slab_table) or ``spp`` (shinya2013's closed
+    form, eqs. 17-22); None: ``spp`` with ``refine``, else ``exact``."""
     depth: str = "auto"
     """``rays``: count leaf crossings; ``grid``: integrate the leaf-area density, own leaf removed (module docstring);
-    ``auto``: rays up to ``AUTO_RAYS_MAX_LEAVES`` leaves in the scene, grid above. Rays where affordable: against the
-    Monte Carlo reference they gave the lower total-irradiance error on both test crowns (benchmarks/bench_sppg.py
-    prints the comparison)."""
+    ``auto``: ``grid`` when the direct light comes from shadow rays (``--direct rays``, the default), else rays up to
+    ``AUTO_RAYS_MAX_LEAVES`` leaves in the scene and grid above. Ray counts were chosen for their direct term (the
+    lower total error on both test crowns, benchmarks/bench_sppg.py); with the exact direct light only the scattered
+    part depends on the depths, and there the grid's smooth depths are better: a leaf's 16 ray counts are a noisy
+    depth, and the slab solution is concave in it, so the exact model read -11 ... -16 % with ray depths and
+    -1 ... +2 % with grid depths in the uniform layer at 60° (r = t = 0.45; per-leaf E_scattered on tree_small,
+    the oak and the sapling within 0.01-0.09 of each other either way), at 5-50x less time."""
     rays_per_leaf: int = 16
     """With ``depth="rays"``: origins per leaf (seeded, uniform over its area); counts are averaged."""
     seed: int = 0
@@ -117,6 +124,10 @@ class SppParams:
         if self.rays_per_leaf < 1:
             raise UsageError(f"--rays-per-leaf must be >= 1, got {self.rays_per_leaf}.")
         check_gather(self.gather)
+        if self.model is not None and self.model not in gf.MODELS:
+            raise UsageError(f"--model must be one of {', '.join(gf.MODELS)}, got {self.model!r}.")
+        if self.model == "exact" and self.refine:
+            raise UsageError("--refine refines shinya2013's closed form (appendix A.1); use it with --model spp.")
 
 
 @dataclass(frozen=True)
@@ -244,6 +255,7 @@ def _mean_result(results: list[gf.SPPGResult]) -> gf.SPPGResult:
         sppg=_mean_irradiance([r.sppg for r in results]), spp=_mean_irradiance([r.spp for r in results]),
         ss=_mean_irradiance([r.ss for r in results]), gfactor=np.mean([r.gfactor for r in results], axis=0),
         directions=first.directions, mu0=first.mu0, refined=first.refined, seconds=sum(r.seconds for r in results),
+        model=first.model,
     )
 
 
@@ -276,7 +288,7 @@ def bake_prototype(
         t_depths += time.perf_counter() - t0
         results.append(gf.solve_sppg(
             own, normals=proto.leaves.normals, optics=params.optics, sun_direction=sun_local, directions=dirs_local, up=up_local,
-            neighbour_depths=extra, params=gf.SPPGParams(refine=params.refine), **vis,
+            neighbour_depths=extra, params=gf.SPPGParams(refine=params.refine, model=params.model), **vis,
         ))
     result = _mean_result(results)
     # cells of the prototype alone, as seen by its first instance
@@ -297,18 +309,21 @@ def bake_prototype(
     )
 
 
-def depth_path(scene: Scene, depth: str) -> str:
-    """``--depth`` made concrete for this scene: ``auto`` counts rays up to ``AUTO_RAYS_MAX_LEAVES`` leaves
-    (summed over instances) and integrates the grid above; ``rays``/``grid`` stay as given."""
+def depth_path(scene: Scene, depth: str, direct_mode: str = "rays") -> str:
+    """``--depth`` made concrete for this scene: ``auto`` integrates the grid when the direct light is the exact one
+    (``direct_mode`` ``rays``), and otherwise counts rays up to ``AUTO_RAYS_MAX_LEAVES`` leaves (summed over
+    instances) and integrates the grid above; ``rays``/``grid`` stay as given."""
     if depth != "auto":
         return depth
+    if direct_mode == "rays":
+        return "grid"
     leaves = sum(scene.prototypes[inst.prototype].leaves.count for inst in scene.instances)
     return "rays" if leaves <= AUTO_RAYS_MAX_LEAVES else "grid"
 
 
 def resolve_depth(scene: Scene, params: SppParams) -> SppParams:
     """``params`` with ``depth`` made concrete for this scene (:func:`depth_path`)."""
-    return replace(params, depth=depth_path(scene, params.depth))
+    return replace(params, depth=depth_path(scene, params.depth, params.direct.mode))
 
 
 def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], progress: Progress) -> list[SppBake]:
@@ -397,7 +412,8 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
     report.stats = {
         "directions": params.directions, "cells": int(sum(p["cells"] for p in protos)), "refine": params.refine,
         "depth": params.depth, "rays_per_leaf": params.rays_per_leaf if params.depth == "rays" else None,
-        "gfactor": params.gfactor, "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
+        "gfactor": params.gfactor, "model": gf.SPPGParams(refine=params.refine, model=params.model).resolved_model,
+        "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
         "gather": {**gathered.stats(), "on": best_name} if gathered is not None else None,

@@ -166,19 +166,20 @@ def test_interrupt_exits_130_and_leaves_no_output(tmp_path):
 
     example = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
     out = tmp_path / "r.usda"
-    proc = subprocess.Popen(
+    # the context manager closes the pipes whatever happens (an unclosed pipe fails a later test's warnings check)
+    with subprocess.Popen(
         [sys.executable, "-m", "foliage_tools", "reference", str(example), "-o", str(out), "--paths", "400000000", "-v"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    # -v logs each step on stderr (no terminal, no bar): interrupt once the tracing has started
-    seen = []
-    for line in proc.stderr:
-        seen.append(line)
-        if "tracing" in line:
-            break
+    ) as proc:
+        # -v logs each step on stderr (no terminal, no bar): interrupt once the tracing has started
+        seen = []
+        for line in proc.stderr:
+            seen.append(line)
+            if "tracing" in line:
+                break
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
     assert any("tracing" in line for line in seen), seen
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     assert "interrupted" in err
     assert list(tmp_path.iterdir()) == []

@@ -82,7 +82,8 @@ EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 
 def _bake(path: Path, depth: str = "rays"):
     _, scene, sun = begin_bake("spp", path, None, None, Silent())
-    bake = bake_spp(scene, sun, SppParams(optics=parse_leaf_optics(None), depth=depth), [], Silent())[0]
+    # the paper's closed form (--model spp): these tests check shinya2013's own model and claims
+    bake = bake_spp(scene, sun, SppParams(optics=parse_leaf_optics(None), depth=depth, model="spp"), [], Silent())[0]
     return scene, sun, bake
 
 
@@ -179,13 +180,15 @@ def test_sppg_corrects_spp_where_it_is_too_bright_in_the_papers_setting(which, r
     Measured at 1M paths, seeds 1 and 2 (the same to 0.01), tree_small / oak: SPP E_scattered over the
     reference in the lowest fifth of the leaves by height 1.79 / 1.65, SPPG 1.15 / 1.10; on the leaves
     where SPP exceeds the reference by > 20 % (41 % / 49 % of them) SPPG is below SPP on every one and
-    its mean |error| is 0.032 / 0.040 against SPP's 0.091 / 0.113; binned eq. 30 of the total
-    SPPG 0.110 / 0.121, SPP 0.200 / 0.185, SS 0.405 / 0.493 (paper: 6.2 %, 65 %, 16 %).
+    its mean |error| is 0.032 / 0.040 against SPP's 0.091 / 0.113 (binned totals: see the last assertion).
+    These are the paper's closed form (``model="spp"``); the exact slab model is too bright in the lower
+    crown of these isolated crowns (3.3x / 3.0x alone, 2.1x / 2.0x with G), where the paper's SPP loses
+    about half of the light and that loss offsets the G-factor's under-correction.
     """
     path = EXAMPLE if which == "example" else request.getfixturevalue("oak")
     optics = parse_leaf_optics("0.475,0.475")
     _, scene, sun = begin_bake("spp", path, None, (0.0, 90.0), Silent())
-    bake = bake_spp(scene, sun, SppParams(optics=optics, sun=(0.0, 90.0)), [], Silent())[0]
+    bake = bake_spp(scene, sun, SppParams(optics=optics, sun=(0.0, 90.0), model="spp"), [], Silent())[0]  # the paper's model
     refbake = bake_reference(scene, sun, ReferenceParams(optics=optics, paths=1_000_000, seed=1, workers=2), Silent())
     ref = refbake.result
     assert len(scene.prototypes) == 1 and ref.e_scattered.shape == bake.result.spp.scattered.shape
@@ -201,12 +204,10 @@ def test_sppg_corrects_spp_where_it_is_too_bright_in_the_papers_setting(which, r
     err_spp = np.abs(spp.scattered[over, 1] - mc[over]).mean()
     err_sppg = np.abs(sppg.scattered[over, 1] - mc[over]).mean()
     assert err_sppg < 0.5 * err_spp  # measured 0.35x / 0.36x
-    # Table 3 binned error of the total irradiance, each method with its own direct term: SPP and SPPG
-    # both well below SS (which scatters nothing). The paper has SPPG first; so did this test until the
-    # ray-count direct term was fixed (exp(-mean count) overestimated the direct light, and SPPG's lower
-    # scattered light partly offset that): now SPPG 0.134 / 0.167 against SPP 0.135 / 0.120
-    # (tree_small / oak), so the G-factor's gain in the lower crown is not a gain in the total here.
+    # Table 3: SPPG has the smallest binned error of the total irradiance, each method with its own direct
+    # term (here SPP < SS, the paper had SS < SPP). Measured with the ray direct term taken from the visible
+    # share: SPPG 0.099 / 0.126, SPP 0.198 / 0.240, SS 0.385 / 0.394 (tree_small / oak; paper 6.2 %, 65 %, 16 %)
     depth, thickness = depth_thickness(refbake.world, sun.direction)
     total = ref.e_direct + ref.e_scattered
     binned = {name: binned_rms(r.direct + r.scattered, total, depth, thickness) for name, r in (("spp", spp), ("sppg", sppg), ("ss", ss))}
-    assert binned["sppg"] < 0.5 * binned["ss"] and binned["spp"] < 0.5 * binned["ss"], binned
+    assert binned["sppg"] < 0.8 * binned["spp"] and binned["spp"] < 0.8 * binned["ss"], binned

@@ -42,8 +42,10 @@ def test_spp_writes_grids_and_primvars(tmp_path):
     assert np.all(sppg <= spp + 1e-6) and sppg.sum() < spp.sum()
     assert np.all(ss == 0)  # the paper's SS baseline: attenuated direct light only
     assert report.stats["directions"] == 16
-    # the report says which depth path ran (rays by default: the lower error against the reference)
-    assert report.stats["depth"] == "rays" and report.stats["rays_per_leaf"] == 16
+    # the report says which depth path ran (grid by default: with the exact direct light the depths serve the
+    # scattered light only, where the grid measured better) and which plane-parallel model
+    assert report.stats["depth"] == "grid" and report.stats["rays_per_leaf"] is None
+    assert report.stats["model"] == "exact" and report.stats["direct"]["mode"] == "rays"
     assert report.stats["prototypes"][0]["instances"] == 1 and report.stats["prototypes"][0]["neighbours"] == 0
     assert foliage("validate", tmp_path / "s.usda").returncode == 0
 
@@ -77,6 +79,11 @@ def test_depth_auto_counts_rays_on_small_scenes_and_integrates_the_grid_on_large
     scene, _ = read_scene(Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda")
     params = spp_mod.SppParams(optics=parse_leaf_optics(None))
     assert params.depth == "auto"
+    # with the exact direct light (the default) the depths serve the scattered light only: grid
+    assert spp_mod.resolve_depth(scene, params).depth == "grid"
+    from foliage_tools.pipeline.direct import DirectChoice
+
+    params = spp_mod.SppParams(optics=parse_leaf_optics(None), direct=DirectChoice(mode="volume"))
     assert spp_mod.resolve_depth(scene, params).depth == "rays"  # 1500 leaves
     monkeypatch.setattr(spp_mod, "AUTO_RAYS_MAX_LEAVES", 1000)
     assert spp_mod.resolve_depth(scene, params).depth == "grid"

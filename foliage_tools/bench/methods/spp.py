@@ -1,24 +1,32 @@
-"""shinya2013's SPP, SPPG and single-scattering (SS) baseline as bench methods (one bake serves all three)."""
+"""shinya2013's SPP, SPPG and single-scattering (SS) baseline as bench methods.
+
+``spp`` / ``sppg``: the default plane-parallel model, the exact slab solution per leaf (``--model exact``), without and
+with the G-factor; ``spp-paper`` / ``sppg-paper``: the paper's closed form (``--model spp``), which loses about half
+the scattered light of a high sun even where the canopy is exactly plane-parallel (lighting/spp.py). One bake serves
+a model's three rows; each row is timed with its own bake.
+"""
 
 from foliage_tools.bench.registry import BenchContext, MethodOutput, register
 from foliage_tools.pipeline.report import Silent
 from foliage_tools.pipeline.spp import SppParams, bake_spp
 
 
-def _runner(which: str):
+def _runner(which: str, model: str):
     def run(ctx: BenchContext) -> MethodOutput:
-        params = SppParams(optics=ctx.optics, sun=(ctx.sun.azimuth, ctx.sun.elevation))
+        params = SppParams(optics=ctx.optics, sun=(ctx.sun.azimuth, ctx.sun.elevation), model=model)
         bakes = bake_spp(ctx.scene, ctx.sun, params, ctx.warnings, Silent())
         irr = {b.index: getattr(b.result, which) for b in bakes}
         return MethodOutput(
             e_direct={i: v.direct for i, v in irr.items()},
             e_scattered={i: v.scattered for i, v in irr.items()},
-            stats={"gfactor_mean": [float(b.result.gfactor.mean()) for b in bakes]},
+            stats={"gfactor_mean": [float(b.result.gfactor.mean()) for b in bakes], "model": model},
         )
 
     return run
 
 
-register("ss", "single scattering baseline (shinya2013 sec. 4.2: attenuated direct light only)")(_runner("ss"))
-register("spp", "simplified plane-parallel, depths from ray crossings (shinya2013 eqs. 17-22, 29, re-derived)")(_runner("spp"))
-register("sppg", "SPP with the G-factor (shinya2013 eqs. 23-28, A.3, re-derived)")(_runner("sppg"))
+register("ss", "single scattering baseline (shinya2013 sec. 4.2: attenuated direct light only)")(_runner("ss", "exact"))
+register("spp", "exact plane-parallel slab per leaf, depths from ray crossings (shinya2013 eq. 29)")(_runner("spp", "exact"))
+register("sppg", "exact plane-parallel slab per leaf with the G-factor (shinya2013 eqs. 23-28, A.3)")(_runner("sppg", "exact"))
+register("spp-paper", "shinya2013's simplified plane-parallel closed form (eqs. 17-22, re-derived)")(_runner("spp", "spp"))
+register("sppg-paper", "shinya2013's SPP closed form with the G-factor (the paper's SPPG)")(_runner("sppg", "spp"))
