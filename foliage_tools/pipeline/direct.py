@@ -31,8 +31,9 @@ DIRECT_MODES = ("rays", "volume")
 #: total over all leaves of all instances stays within AUTO_RAY_BUDGET. The sampling error of a leaf falls
 #: about as K^-0.6..-0.75 (stratified points; tree_small: 14 % at 16, 5 % at 64, 2 % at 256 relative RMS
 #: over leaves), and Embree traces ~1-2M of these rays per second on 2 cores, so the budget keeps the
-#: direct term to ~15-30 s on any tree: 256 rays per leaf up to 130k leaves, 32 at 1M.
-AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET = 16, 256, 1 << 25
+#: direct term to ~15-30 s on any tree: 1024 rays per leaf up to 32k leaves, 32 at 1M. At 256 the direct
+#: term's noise (2-3 %) was the largest part of every method's total error on the test trees.
+AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET = 16, 1024, 1 << 25
 
 
 def auto_samples(leaves: int) -> int:
