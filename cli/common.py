@@ -150,7 +150,7 @@ def direct_options(fn: Callable) -> Callable:
     fn = click.option(
         "--direct-samples", default="auto", show_default=True, callback=parse_direct_samples, metavar="auto|N",
         help="With --direct rays: shadow rays per leaf, an even number (two halves give the sampling error in the JSON "
-             "report). auto: 1024 up to 32k leaves, fewer above so the scene takes at most 32M rays (32 at 1M leaves).",
+             "report). auto: 1024 up to 16k leaves, fewer above so the scene takes at most 16M rays (16 at 1M leaves).",
     )(fn)
     fn = click.option(
         "--direct", "direct_mode", type=click.Choice(["rays", "volume"]), default="rays", show_default=True,

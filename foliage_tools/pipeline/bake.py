@@ -105,6 +105,15 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) 
 
     stem = Path(path).stem
     stages = {}
+    if params.direct.mode == "rays":
+        # the exact direct light, traced once for the three stages that write it (the geometry is the input's)
+        from dataclasses import replace
+
+        from foliage_tools.pipeline.direct import bake_direct
+        from foliage_tools.pipeline.stage import begin_bake
+
+        _, scene, sun = begin_bake("bake", path, None, params.sun, progress)
+        params = replace(params, direct=replace(params.direct, precomputed=bake_direct(scene, sun, params.direct, progress)))
     density_out = work / f"{stem}.density.usda"
     stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution), progress=progress)
     smax_out = work / f"{stem}.smax.usda"

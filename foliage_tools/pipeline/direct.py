@@ -30,10 +30,10 @@ DIRECT_MODES = ("rays", "volume")
 #: ``--direct-samples auto``: shadow rays per leaf, a power of two in [AUTO_MIN, AUTO_MAX], the most whose
 #: total over all leaves of all instances stays within AUTO_RAY_BUDGET. The sampling error of a leaf falls
 #: about as K^-0.6..-0.75 (stratified points; tree_small: 14 % at 16, 5 % at 64, 2 % at 256 relative RMS
-#: over leaves), and Embree traces ~1-2M of these rays per second on 2 cores, so the budget keeps the
-#: direct term to ~15-30 s on any tree: 1024 rays per leaf up to 32k leaves, 32 at 1M. At 256 the direct
+#: over leaves), and Embree traces ~1-2M of these rays per second on 2 cores (bench_direct.py), so the budget keeps the
+#: direct term to ~10-15 s on any tree: 1024 rays per leaf up to 16k leaves, 16 at 1M. At 256 the direct
 #: term's noise (2-3 %) was the largest part of every method's total error on the test trees.
-AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET = 16, 1024, 1 << 25
+AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET = 16, 1024, 1 << 24
 
 
 def auto_samples(leaves: int) -> int:
@@ -44,7 +44,7 @@ def auto_samples(leaves: int) -> int:
     return k
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class DirectChoice:
     """``--direct`` and ``--direct-samples``."""
 
@@ -52,6 +52,8 @@ class DirectChoice:
     samples: int | None = None
     """Shadow rays per leaf (even, ≥ 2); None: :func:`auto_samples` of the scene's leaf count."""
     seed: int = 0
+    precomputed: "DirectBake | None" = None
+    """A result already traced for this scene and sun (``bake`` traces once for its three stages); used as is."""
 
     def __post_init__(self) -> None:
         if self.mode not in DIRECT_MODES:
@@ -78,6 +80,10 @@ class DirectBake:
 
 def bake_direct(scene: Scene, sun: Sun, choice: DirectChoice, progress: Progress, world: World | None = None) -> DirectBake:
     """Exact E_direct of every leaf of every instance; per prototype, the mean over its instances."""
+    if choice.precomputed is not None:
+        if [len(p) for p in choice.precomputed.per_prototype] != [p.leaves.count for p in scene.prototypes]:
+            raise ValueError("DirectChoice.precomputed was traced for another scene")
+        return choice.precomputed
     world = world if world is not None else assemble(scene)
     n = int(world.offsets[-1])
     samples = choice.samples if choice.samples is not None else auto_samples(n)
