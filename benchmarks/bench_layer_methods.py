@@ -1,0 +1,70 @@
+"""Every method's E_scattered on a uniform leaf layer against the reference on the same (finite) layer, per depth bin.
+
+Usage (the README's layer table)::
+
+    python examples/make_layer.py --out /tmp/layer60.usda --sun 0,60
+    python benchmarks/bench_layer_methods.py /tmp/layer60.usda 0.45,0.45 0,60
+    python examples/make_layer.py --out /tmp/layer30.usda --sun 0,30
+    python benchmarks/bench_layer_methods.py /tmp/layer30.usda 0.1,0.1 0,30 [spp,sppg,spp-paper,lb-64,spp+gather,lb+gather]
+
+Arguments: the layer, --leaf-optics, --sun, and optionally the methods. The
+reference stops at 4 % per-leaf noise (a bin holds ~2000 leaves); bins are
+0.3 m of depth over the inner region |x|, |y| < 3.5 m, top to bottom.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from foliage_tools.pipeline.stage import begin_bake  # noqa: E402
+from foliage_tools.pipeline.report import Silent  # noqa: E402
+from foliage_tools.pipeline.spp import SppParams, bake_spp  # noqa: E402
+from foliage_tools.pipeline.lb import LBBakeParams, bake_lb  # noqa: E402
+from foliage_tools.pipeline.gather import bake_gather  # noqa: E402
+from foliage_tools.pipeline.direct import DirectChoice, bake_direct  # noqa: E402
+from foliage_tools.pipeline.reference import ReferenceParams, bake_reference  # noqa: E402
+from foliage_tools.lighting.optics import parse_leaf_optics  # noqa: E402
+from foliage_tools.bench.metrics import rel_rms  # noqa: E402
+
+
+def main(argv: list[str]) -> int:
+    path, optics_s, sun_s = argv[0], argv[1], argv[2]
+    methods = argv[3].split(",") if len(argv) > 3 else ["spp", "sppg", "spp-paper", "lb-64", "spp+gather", "lb+gather"]
+    optics = parse_leaf_optics(optics_s); sun_t = tuple(float(x) for x in sun_s.split(","))
+    _, scene, sun = begin_bake("spp", Path(path), None, sun_t, Silent())
+    t = time.perf_counter()
+    refb = bake_reference(scene, sun, ReferenceParams(optics=optics, paths=16_000_000, noise=0.04), Silent())
+    ref = refb.result
+    c = scene.prototypes[0].leaves.centers
+    inner = (np.abs(c[:, 0]) < 3.5) & (np.abs(c[:, 1]) < 3.5)
+    bins = np.clip(np.digitize(1.5 - c[:, 2], np.linspace(0, 1.5, 6)) - 1, 0, 4)
+    def binline(e, r):
+        return " ".join(f"{100*(e[inner&(bins==k)].mean()/r[inner&(bins==k)].mean()-1):+.1f}" for k in range(5))
+    print(f"== {Path(path).name} {optics_s} sun {sun_s}: reference {ref.paths:,} paths, noise {ref.noise_rel:.3f} ({time.perf_counter()-t:.0f} s)", flush=True)
+    d = bake_direct(scene, sun, DirectChoice(), Silent(), world=refb.world)
+    print(f"  direct (rays, {d.result.samples_per_leaf}/leaf) {d.result.seconds:.1f}s  E_direct bins vs ref {binline(d.result.e_direct, ref.e_direct[:,0])}", flush=True)
+    cache = {}
+    for m in methods:
+        t = time.perf_counter()
+        if m.startswith("spp") or m == "sppg":
+            model = "spp" if "paper" in m else "exact"
+            b = bake_spp(scene, sun, SppParams(optics=optics, sun=sun_t, model=model), [], Silent())[0].result
+            e = (b.sppg if m.startswith("sppg") or m == "spp+gather" else b.spp).scattered
+        elif m.startswith("lb"):
+            res = 32 if m == "lb+gather" else int(m.split("-")[1])
+            b = bake_lb(scene, sun, LBBakeParams(optics=optics, sun=sun_t, resolution=res), [], Silent())[0]
+            e = b.e_scattered
+        if m.endswith("+gather"):
+            e = bake_gather(scene, sun, optics, {0: e}, 1024, Silent(), world=refb.world).per_prototype[0]
+        dt = time.perf_counter() - t
+        print(f"  {m:<11} {dt:6.1f}s relRMS {rel_rms(e, ref.e_scattered):.3f}  bins {binline(e[:,1], ref.e_scattered[:,1])}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
