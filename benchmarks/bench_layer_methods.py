@@ -33,6 +33,9 @@ from foliage_tools.bench.metrics import rel_rms  # noqa: E402
 
 
 def main(argv: list[str]) -> int:
+    if len(argv) < 3:
+        print(__doc__)
+        return 2
     path, optics_s, sun_s = argv[0], argv[1], argv[2]
     methods = argv[3].split(",") if len(argv) > 3 else ["spp", "sppg", "spp-paper", "lb-64", "spp+gather", "lb+gather"]
     optics = parse_leaf_optics(optics_s); sun_t = tuple(float(x) for x in sun_s.split(","))
