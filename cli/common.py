@@ -168,8 +168,11 @@ def parse_direct_samples(ctx: click.Context, param: click.Parameter, value) -> i
         k = int(str(value).strip())
     except ValueError:
         raise click.BadParameter(f"{value!r} is neither 'auto' nor a whole number.", ctx=ctx, param=param) from None
-    if k < 2 or k % 2:
-        raise click.BadParameter(f"{k} must be even and at least 2 (two halves give the sampling error).", ctx=ctx, param=param)
+    from foliage_tools.lighting.direct import MAX_SAMPLES
+
+    if k < 2 or k % 2 or k > MAX_SAMPLES:
+        raise click.BadParameter(f"{k} must be even, from 2 (two halves give the sampling error) to {MAX_SAMPLES}.",
+                                 ctx=ctx, param=param)
     return k
 
 

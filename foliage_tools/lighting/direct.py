@@ -53,9 +53,11 @@ from foliage_tools.geometry.rays import PeriodicRayScene, RayScene
 
 __all__ = ["DirectInputs", "DirectParams", "DirectResult", "solve"]
 
-#: Leaves per unit of work (seeding, threading): bounds the memory of one chunk
-#: (K points × 6 doubles each) and fixes the random streams whatever the workers.
-_CHUNK_LEAVES = 1 << 14
+#: Sample points per unit of work (seeding, threading): bounds the memory of one chunk (~100 bytes a point)
+#: and fixes the random streams whatever the workers.
+_CHUNK_POINTS = 1 << 20
+#: Most samples per leaf (a chunk must hold one leaf).
+MAX_SAMPLES = 1 << 16
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,8 +101,8 @@ class DirectParams:
 
     def __post_init__(self) -> None:
         k = self.samples_per_leaf
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 2 or k % 2:
-            raise ValueError(f"samples_per_leaf must be an even integer >= 2 (two halves), got {k!r}")
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 2 or k % 2 or k > MAX_SAMPLES:
+            raise ValueError(f"samples_per_leaf must be an even integer in [2, {MAX_SAMPLES}] (two halves), got {k!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
         if self.workers is not None and (isinstance(self.workers, bool) or int(self.workers) < 1):
@@ -160,7 +162,8 @@ def solve(
     cos_s = normals @ sun
     sampler = LeafSampler(tri, leaf, n_leaves)
     has_area = sampler.has_area
-    chunks = [(a, min(a + _CHUNK_LEAVES, n_leaves)) for a in range(0, n_leaves, _CHUNK_LEAVES)]
+    per_chunk = max(1, _CHUNK_POINTS // k)
+    chunks = [(a, min(a + per_chunk, n_leaves)) for a in range(0, n_leaves, per_chunk)]
     seeds = np.random.SeedSequence(params.seed).spawn(len(chunks))
     base_lattice = lattice(half)  # (K/2, 2), before the shift
 

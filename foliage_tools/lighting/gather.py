@@ -55,8 +55,10 @@ from foliage_tools.lighting.optics import LeafOptics
 
 __all__ = ["GatherInputs", "GatherParams", "GatherResult", "solve"]
 
-#: Leaves per unit of work (seeding, threading, memory).
-_CHUNK_LEAVES = 1 << 11
+#: Gather rays per unit of work (seeding, threading, memory: ~200 bytes a ray).
+_CHUNK_RAYS = 1 << 19
+#: Most rays per leaf (a chunk must hold one leaf).
+MAX_RAYS = 1 << 16
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,8 +102,8 @@ class GatherParams:
 
     def __post_init__(self) -> None:
         k = self.rays_per_leaf
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 4 or k % 4:
-            raise ValueError(f"rays_per_leaf must be a multiple of 4 (two halves per face), got {k!r}")
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 4 or k % 4 or k > MAX_RAYS:
+            raise ValueError(f"rays_per_leaf must be a multiple of 4 (two halves per face) up to {MAX_RAYS}, got {k!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,7 +150,8 @@ def solve(inputs: GatherInputs, params: GatherParams = GatherParams()) -> Gather
     rest = inputs.rest
     sampler = LeafSampler(tri, leaf, n_leaves)
     has_area = sampler.has_area
-    chunks = [(a, min(a + _CHUNK_LEAVES, n_leaves)) for a in range(0, n_leaves, _CHUNK_LEAVES)]
+    per_chunk = max(1, _CHUNK_RAYS // k)
+    chunks = [(a, min(a + per_chunk, n_leaves)) for a in range(0, n_leaves, per_chunk)]
     seeds = np.random.SeedSequence(params.seed).spawn(len(chunks))
     base_lattice = lattice(q)
 

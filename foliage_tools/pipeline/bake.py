@@ -91,6 +91,7 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
         "result": str(final),
         "stages": {name: {"seconds": r.seconds, "outputs": r.outputs} for name, r in stages.items()},
         "bench": stages["bench"].stats if "bench" in stages else None,
+        "direct": stages["smax"].stats.get("direct"),
     }
     return report.finish()
 

@@ -132,10 +132,13 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
     unresolved = [r["name"] for r in rows if r["available"] and r["rel_rms_scattered"] is not None
                   and r["rel_rms_scattered"] < 2.0 * float(res.noise_rel)]
     if unresolved:
+        stopped_at_target = params.noise is not None and res.noise_rel <= params.noise
+        fix = (f"Lower {params.noise_flag} (now {params.noise:g}): half the noise takes about 4x the paths."
+               if stopped_at_target else
+               f"Raise {params.paths_flag}: 4x the paths ({4 * int(res.paths):,}) at best halve the noise.")
         report.warnings.append(
             f"the E_scattered errors of {', '.join(unresolved)} are less than twice the reference's own noise "
-            f"({res.noise_rel:.3f}; an exact method would score about that), so they are not resolved. Raise {params.paths_flag}: "
-            f"4x the paths ({4 * int(res.paths):,}) at best halve the noise."
+            f"({res.noise_rel:.3f}; an exact method would score about that), so they are not resolved. {fix}"
         )
     report.stats = {
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},

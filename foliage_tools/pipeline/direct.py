@@ -58,9 +58,9 @@ class DirectChoice:
     def __post_init__(self) -> None:
         if self.mode not in DIRECT_MODES:
             raise UsageError(f"--direct must be one of {', '.join(DIRECT_MODES)}, got {self.mode!r}.")
-        if self.samples is not None and (self.samples < 2 or self.samples % 2):
-            raise UsageError(f"--direct-samples must be 'auto' or an even number >= 2 (two halves for the noise "
-                             f"estimate), got {self.samples}.")
+        if self.samples is not None and (self.samples < 2 or self.samples % 2 or self.samples > direct.MAX_SAMPLES):
+            raise UsageError(f"--direct-samples must be 'auto' or an even number from 2 to {direct.MAX_SAMPLES} (two "
+                             f"halves for the noise estimate), got {self.samples}.")
 
 
 @dataclass(frozen=True)

@@ -22,8 +22,9 @@ from foliage_tools.scene.model import Scene
 
 
 def check_gather(rays: int) -> None:
-    if rays != 0 and (rays < 4 or rays % 4):
-        raise UsageError(f"--gather must be 0 (off) or a multiple of 4 rays per leaf (two halves per face), got {rays}.")
+    if rays != 0 and (rays < 4 or rays % 4 or rays > gather.MAX_RAYS):
+        raise UsageError(f"--gather must be 0 (off) or a multiple of 4 rays per leaf (two halves per face) up to "
+                         f"{gather.MAX_RAYS}, got {rays}.")
 
 
 @dataclass(frozen=True)

@@ -126,7 +126,7 @@ def plan(path: Path, params: PlanParams) -> Report:
             "lower --resolution, or use --bases sun (1/18 of the memory)."
         )
     total_s["reference"] = params.reference_paths / REFERENCE_PATHS_PER_S
-    # --direct rays (the default): once in each of smax, spp and lb, over every leaf of every instance
+    # --direct rays (the default): in each of smax, spp and lb run alone, once in a bake; every leaf of every instance
     direct_rays = leaves_total * auto_samples(leaves_total)
     total_s["direct"] = direct_rays / DIRECT_RAYS_PER_S
     report.stats = {
