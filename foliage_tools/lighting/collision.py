@@ -60,10 +60,64 @@ which is G*LAD*dx to first order and makes the lattice's per-step
 transmittance of unscattered light along an axial direction, 1 - rho*sigma_t
 with sigma_t = 1, equal to Beer-Lambert ``exp(-G LAD dx)`` exactly; it also
 keeps rho < 1, so the stability bound rho*sigma_t <= 1 holds whenever
-sigma_t <= 1. (Like geist2008, the lattice uses the same rho for the longer
-non-axial steps, so diagonal beams are attenuated as if they crossed dx, not
-sqrt(2) dx.) The ``subgrid`` density of geist2008 sec. 4.2 (covered fraction of
-27 sub-cells) is already in [0, 1] and is used as rho directly.
+sigma_t <= 1. The ``subgrid`` density of geist2008 sec. 4.2 (covered fraction
+of 27 sub-cells) is already in [0, 1] and is used as rho directly.
+
+Step lengths: the ``ordinates`` lattice (default) and ``geist2008``
+-----------------------------------------------------------------
+geist2008 (eqs. (2), (6), (7)) multiplies the whole of Omega by one node
+density, so a step along a non-axial direction c_i (length |c_i| dx =
+sqrt(2) dx) is attenuated like an axial one (dx): a diagonal beam crosses a
+slab as if at normal incidence (exp(-tau) instead of exp(-tau sqrt 2)). That
+is ``lattice="geist2008"``, kept to reproduce the paper. ``lattice="ordinates"``
+reads the lattice as a discrete-ordinate scheme and corrects both places where
+the step length enters:
+
+* Extinction. A beam along c_j crosses |c_j| dx of medium per step, so the
+  probability that it meets a leaf in the step is
+
+      rho_j = 1 - exp(-G LAD |c_j| dx) = 1 - (1 - rho)^|c_j|        (``step_density``)
+
+  (rho_j = rho axial, ``diagonal_density(rho)`` non-axial), replacing the
+  common factor rho of geist2008 sec. 2.2 by a per-column factor: the update
+  is ``f_i <- f_i + sum_j A_ij rho_j f_j`` with A = ``unit_moving_block``.
+* In-scattering (the sigma_s terms of eqs. (6)-(9)). In a steady beam f_i is
+  the irradiance carried by ordinate i; one lattice line per node carries it,
+  and the lines of direction c_i are |c_i| times denser across the beam than
+  axial ones (one line per node, nodes |c_i| dx apart along the line), so a
+  line stands for the cross-section a_i = dx^2 / |c_i| and carries the power
+  f_i a_i. The power a node takes out of beam j is ``sigma_t rho_j f_j a_j``;
+  scattering the share sigma_s P_ij of it into i and dividing by a_i gives
+
+      A_ij = sigma_s P_ij |c_i| / |c_j| - sigma_t delta_ij            (i, j > 0)
+
+  so the power-weighted column sums ``sum_i A_ij / |c_i| = -sigma_a / |c_j|``
+  vanish at sigma_a = 0: the conserved quantity is the power
+  ``sum_i f_i / |c_i|`` (the net flux through a horizontal plane is
+  ``sum_i f_i n_iz``, n_iz = c_iz / |c_i|), no longer the density sum. The
+  update stays non-negative with weighted column sums 1 - sigma_a rho_j <= 1
+  when rho_j sigma_t <= 1, so it cannot grow (stable in the weighted 1-norm).
+  To first order in dx both terms are those of the discrete-ordinate
+  transport equation ``n_i . grad f_i = -sigma f_i + sigma_s sum_j P_ij f_j``
+  integrated over a step of length |c_i| dx.
+* Weights. P_ij = w_i p(n_i . n_j) / sum_k w_k p(n_k . n_j) is eq. (8) with
+  the quadrature weights of the ordinates, ``lattice.ORDINATE_WEIGHTS`` (1/30
+  axial, 1/15 non-axial: fourth-moment isotropy of the unit directions, see
+  ``lattice``), instead of geist2008's 1/12, 1/24 (fourth-moment isotropy of
+  the velocities c_i, the right condition for the geist2008 steps).
+
+Phase functions
+---------------
+``Medium.phase`` picks p of eq. (8): ``"hg"``, the Henyey-Greenstein p of eq.
+(9) with the g of eq. (10); or ``"bilambertian"``, the area scattering phase
+function of randomly oriented two-sided Lambertian leaves (Ross 1981; the
+phase function the Monte Carlo reference and the exact slab solver use,
+``phase.BiLambertianCanopyPhase``), p(beta) ~ r^ (sin b - b cos b) + t^ (sin b
++ (pi - b) cos b), written with the same g: r^ = (1 - g) / 2 = r / (r + t),
+t^ = (1 + g) / 2. (HG with g = (t - r)/(t + r) is more forward-peaked than the
+leaves: the bi-Lambertian asymmetry is 4/9 of that g.) The discrete weights of
+a direction d off the lattice (the first-collision source of ``lb``) are the
+same eq. (8) ratios with n_j replaced by d (``source_weights``).
 """
 
 from __future__ import annotations
@@ -73,23 +127,35 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from foliage_tools.lighting.lattice import DIRECTIONS, MULTIPLICITY, WEIGHTS
+from foliage_tools.lighting.lattice import DIRECTIONS, MULTIPLICITY, ORDINATE_WEIGHTS, STEP_LENGTHS, UNIT_DIRECTIONS, WEIGHTS
 from foliage_tools.lighting.optics import LeafOptics, parse_leaf_optics
 
 __all__ = [
     "GEIST2008_ABSORPTION_SCALE",
     "GEIST2008_LEAF",
+    "LATTICES",
     "LEAF_ANGLE_G",
     "LeafOptics",
     "Medium",
+    "PHASES",
     "brown",
     "density_from_lad",
+    "diagonal_density",
     "hg_weights",
+    "lattice_weights",
     "leaf_medium",
     "omega",
     "omega_isotropic",
+    "phase_weights",
+    "source_weights",
+    "step_density",
     "unit_moving_block",
 ]
+
+#: Lattice readings (module docstring): ``ordinates`` (true step lengths, ordinate weights) or the paper's ``geist2008``.
+LATTICES = ("ordinates", "geist2008")
+#: Discrete phase functions of eq. (8): Henyey-Greenstein (geist2008 eq. (9)) or the bi-Lambertian leaf canopy.
+PHASES = ("hg", "bilambertian")
 
 #: Ross G-function of a spherical (uniformly random) leaf-angle distribution:
 #: mean projected area of a unit leaf onto a plane normal to any direction.
@@ -113,9 +179,13 @@ class Medium:
     sigma_s: tuple[float, ...]
     """Scattered fraction of an interaction, per channel (>= 0)."""
     g: tuple[float, ...]
-    """Henyey-Greenstein asymmetry per channel in [-1, 1] (> 0 forward, < 0 backward)."""
+    """Asymmetry per channel in [-1, 1] (> 0 forward, < 0 backward): eq. (10)'s g = (t - r) / (t + r)."""
+    phase: str = "hg"
+    """``hg`` (geist2008 eq. (9)) or ``bilambertian`` (two-sided Lambertian leaves, r^ = (1 - g) / 2)."""
 
     def __post_init__(self) -> None:
+        if self.phase not in PHASES:
+            raise ValueError(f"phase must be one of {', '.join(PHASES)}, got {self.phase!r}")
         vals = {}
         for name in ("sigma_a", "sigma_s", "g"):
             v = tuple(float(x) for x in np.atleast_1d(np.asarray(getattr(self, name), dtype=np.float64)))
@@ -145,16 +215,18 @@ class Medium:
         operator without the scattered-back-into-the-beam term, so solving with
         it gives the unscattered ("direct") part of the full solution.
         """
-        return Medium(sigma_a=self.sigma_t, sigma_s=tuple(0.0 for _ in self.sigma_s), g=self.g)
+        return Medium(sigma_a=self.sigma_t, sigma_s=tuple(0.0 for _ in self.sigma_s), g=self.g, phase=self.phase)
 
 
-def leaf_medium(optics: LeafOptics = GEIST2008_LEAF, *, absorption_scale: float = GEIST2008_ABSORPTION_SCALE) -> Medium:
+def leaf_medium(optics: LeafOptics = GEIST2008_LEAF, *, absorption_scale: float = GEIST2008_ABSORPTION_SCALE,
+                phase: str = "hg") -> Medium:
     """(sigma_a, sigma_s, g) per channel from leaf optics (geist2008 sec. 3, eq. (10)).
 
     ``sigma_a = absorption_scale * (1 - r - t)``, ``sigma_s = 1 - sigma_a``,
     ``g = (t - r) / (t + r)``. The default reproduces geist2008 Table 1
     (sigma_a = 0.109, 0.091, 0.118; g = -0.120, 0.091, -0.333).
     ``absorption_scale = 1`` gives sigma_s = r + t, the physical leaf albedo.
+    ``phase`` is the discrete phase function (``PHASES``; module docstring).
     """
     if not (math.isfinite(absorption_scale) and 0.0 < absorption_scale <= 1.0):
         raise ValueError(f"absorption_scale must be in (0, 1], got {absorption_scale}")
@@ -164,7 +236,7 @@ def leaf_medium(optics: LeafOptics = GEIST2008_LEAF, *, absorption_scale: float 
     sigma_a = np.clip(sigma_a, 0.0, None)
     sigma_s = 1.0 - sigma_a  # geist2008 sec. 3: sigma_s = 1 - sigma_a
     g = optics.g  # geist2008 eq. (10), fs = t, bs = r (0 where r + t = 0)
-    return Medium(sigma_a=tuple(sigma_a), sigma_s=tuple(sigma_s), g=tuple(g))
+    return Medium(sigma_a=tuple(sigma_a), sigma_s=tuple(sigma_s), g=tuple(g), phase=phase)
 
 
 def brown(medium: Medium) -> Medium:
@@ -242,6 +314,109 @@ def hg_weights(g: float) -> np.ndarray:
     return num / num.sum(axis=0, keepdims=True)  # geist2008 eq. (8): w_i pn_ij
 
 
+def lattice_weights(lattice: str) -> np.ndarray:
+    """(18,) quadrature weights of the moving directions: geist2008's 1/12, 1/24 or the ordinates' 1/30, 1/15."""
+    _check_lattice(lattice)
+    return np.asarray((WEIGHTS if lattice == "geist2008" else ORDINATE_WEIGHTS)[1:], dtype=np.float64)
+
+
+def _check_lattice(lattice: str) -> None:
+    if lattice not in LATTICES:
+        raise ValueError(f"lattice must be one of {', '.join(LATTICES)}, got {lattice!r}")
+
+
+def _check_phase(phase: str, g: float) -> float:
+    if phase not in PHASES:
+        raise ValueError(f"phase must be one of {', '.join(PHASES)}, got {phase!r}")
+    g = float(g)
+    if not (math.isfinite(g) and -1.0 <= g <= 1.0):
+        raise ValueError(f"g must be in [-1, 1], got {g}")
+    return g
+
+
+def _bilambertian(mu: np.ndarray, g: float) -> np.ndarray:
+    """Bi-Lambertian canopy phase function (phase.BiLambertianCanopyPhase) up to its constant, r^ = (1 - g)/2."""
+    mu = np.clip(mu, -1.0, 1.0)
+    beta = np.arccos(mu)
+    sin_b = np.sqrt(np.maximum(0.0, 1.0 - mu * mu))
+    r_hat, t_hat = 0.5 * (1.0 - g), 0.5 * (1.0 + g)
+    return r_hat * (sin_b - beta * mu) + t_hat * (sin_b + (math.pi - beta) * mu)
+
+
+def _hg_relative(one_minus_mu: np.ndarray, one_plus_mu: np.ndarray, g: float) -> np.ndarray:
+    """HG p(mu) / max over axis 0, finite for every g including |g| = 1 (see ``hg_weights``)."""
+    if g >= 0.0:
+        D = (1.0 - g) ** 2 + 2.0 * g * one_minus_mu
+    else:
+        D = (1.0 + g) ** 2 - 2.0 * g * one_plus_mu
+    dmin = D.min(axis=0, keepdims=True)
+    ratio = np.divide(np.broadcast_to(dmin, D.shape), D, out=np.ones_like(D), where=D > 0.0)
+    return ratio**1.5
+
+
+def phase_weights(g: float, phase: str = "hg", lattice: str = "ordinates") -> np.ndarray:
+    """(18, 18) P_ij: share of the power scattered out of direction j that goes into direction i.
+
+    geist2008 eq. (8) with the lattice's quadrature weights w (``lattice_weights``) and the
+    phase function ``phase`` (``PHASES``): P_ij = w_i p(n_i . n_j) / sum_k w_k p(n_k . n_j).
+    Each column is a distribution (>= 0, sums to 1). ``phase_weights(g, "hg", "geist2008")`` is
+    ``hg_weights(g)``.
+    """
+    g = _check_phase(phase, g)
+    _check_lattice(lattice)
+    if phase == "hg" and lattice == "geist2008":
+        return hg_weights(g)
+    w = lattice_weights(lattice)
+    p = _hg_relative(_OMM, _OPM, g) if phase == "hg" else _bilambertian(1.0 - _OMM, g)
+    num = w[:, None] * p
+    return num / num.sum(axis=0, keepdims=True)
+
+
+def source_weights(direction, g: float, phase: str = "hg", lattice: str = "ordinates") -> np.ndarray:
+    """(18,) q_i(d): share of the power scattered out of a beam travelling along ``direction`` that goes into c_i.
+
+    eq. (8) for an incident direction d that need not be a lattice direction (the
+    first-collision source of ``lb``): q_i = w_i p(n_i . d) / sum_k w_k p(n_k . d). For d = n_j
+    it is column j of ``phase_weights``.
+    """
+    g = _check_phase(phase, g)
+    _check_lattice(lattice)
+    d = np.asarray(direction, dtype=np.float64).reshape(3)
+    norm = float(np.linalg.norm(d))
+    if not (math.isfinite(norm) and norm > 0.0):
+        raise ValueError(f"direction must be a finite nonzero 3-vector, got {tuple(d)}")
+    mu = UNIT_DIRECTIONS[1:] @ (d / norm)
+    # exact 1 -+ mu on a lattice direction, as in _one_minus_mu
+    omm = np.where(np.isclose(mu, 1.0, rtol=0, atol=1e-15), 0.0, 1.0 - mu)
+    opm = np.where(np.isclose(mu, -1.0, rtol=0, atol=1e-15), 0.0, 1.0 + mu)
+    w = lattice_weights(lattice)
+    p = _hg_relative(omm[:, None], opm[:, None], g)[:, 0] if phase == "hg" else _bilambertian(1.0 - omm, g)
+    num = w * p
+    return num / num.sum()
+
+
+def diagonal_density(rho) -> np.ndarray:
+    """rho_d = 1 - (1 - rho)^sqrt(2): the interaction probability of a non-axial step (module docstring).
+
+    With rho = 1 - exp(-G LAD dx) (``density_from_lad``) this is 1 - exp(-G LAD sqrt(2) dx), the
+    Beer-Lambert loss over the sqrt(2) dx of a diagonal step. rho must lie in [0, 1]; rho_d >= rho.
+    """
+    rho = np.asarray(rho, dtype=np.float64)
+    if rho.size and (not np.all(np.isfinite(rho)) or rho.min() < 0.0 or rho.max() > 1.0):
+        raise ValueError("rho must be finite and in [0, 1] for the diagonal step density")
+    with np.errstate(divide="ignore"):
+        return -np.expm1(math.sqrt(2.0) * np.log1p(-rho))
+
+
+def step_density(rho, lattice: str = "ordinates") -> np.ndarray:
+    """(..., 18) rho_j per moving direction: rho (axial) and ``diagonal_density(rho)`` (non-axial) for
+    ``ordinates``, rho for all 18 for ``geist2008`` (the paper's one factor per node)."""
+    _check_lattice(lattice)
+    rho = np.asarray(rho, dtype=np.float64)
+    rd = diagonal_density(rho) if lattice == "ordinates" else rho
+    return np.concatenate([np.repeat(rho[..., None], 6, axis=-1), np.repeat(rd[..., None], 12, axis=-1)], axis=-1)
+
+
 def omega(rho: float, sigma_a: float, sigma_s: float, g: float = 0.0) -> np.ndarray:
     """(19, 19) collision matrix of one node and channel, geist2008 eqs. (5)-(9), times rho.
 
@@ -275,10 +450,21 @@ def omega_isotropic(rho: float, sigma_a: float, sigma_s: float) -> np.ndarray:
     return rho * om
 
 
-def unit_moving_block(medium: Medium) -> np.ndarray:
-    """(C, 18, 18) float64: Omega[1:, 1:] at rho = 1 for each channel of ``medium``.
+def unit_moving_block(medium: Medium, lattice: str = "ordinates") -> np.ndarray:
+    """(C, 18, 18) float64: the moving block A of the collision for each channel of ``medium``.
 
-    ``f_post = f + rho * (block @ f)`` over the moving directions is geist2008
-    eq. (2)'s collision followed by the removal of f_0 (geist2008 sec. 3).
+    ``f_post_i = f_i + sum_j A_ij rho_j f_j`` over the moving directions, with rho_j =
+    ``step_density(rho, lattice)``, is geist2008 eq. (2)'s collision followed by the removal of
+    f_0 (geist2008 sec. 3). ``geist2008``: A = Omega[1:, 1:] at rho = 1 (eqs. (5)-(9), with
+    ``medium.phase``), and rho_j = rho. ``ordinates``: A_ij = sigma_s P_ij |c_i| / |c_j| -
+    sigma_t delta_ij with the ordinate weights (module docstring).
     """
-    return np.stack([omega(1.0, a, s, g)[1:, 1:] for a, s, g in zip(medium.sigma_a, medium.sigma_s, medium.g)])
+    _check_lattice(lattice)
+    out = []
+    for a, s, g in zip(medium.sigma_a, medium.sigma_s, medium.g):
+        P = phase_weights(g, medium.phase, lattice)
+        if lattice == "ordinates":
+            L = STEP_LENGTHS[1:]
+            P = P * (L[:, None] / L[None, :])  # power a_j taken from beam j, handed to beam i as power a_i
+        out.append(s * P - (a + s) * np.eye(18))
+    return np.stack(out)

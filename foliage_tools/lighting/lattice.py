@@ -37,6 +37,27 @@ moving directions (the rest direction gets weight 0: it does not take part
 in the angular redistribution). They are a symmetric quadrature of the
 sphere: ``sum_i w_i c_i = 0`` and ``sum_i w_i c_i c_i^T = I / 2``.
 
+Step lengths and ordinate weights (the "ordinates" lattice of ``lb``)
+--------------------------------------------------------------------
+``STEP_LENGTHS[i] = |c_i|`` is the length of one lattice step along c_i in
+units of the lattice spacing: 1 axial, sqrt(2) non-axial (0 rest).
+
+Read as a discrete-ordinate scheme, each moving direction is an ordinate
+n_i = c_i / |c_i| standing for a cone of directions, and the share of
+isotropically scattered power it receives is a quadrature weight on the
+sphere. geist2008's double axial weight (``WEIGHTS``) is the lattice-gas
+condition that the fourth moments of the lattice *velocities* c_i are
+isotropic, ``sum_i w_i c_ix^4 = 3 sum_i w_i c_ix^2 c_iy^2`` (2a + 8b = 12b, so
+a = 2b, with a the axial and b the non-axial weight): right for particles that
+move |c_i| per step. For ordinates the same condition on the unit vectors
+n_i, ``sum_i w_i n_ix^4 = 3 sum_i w_i n_ix^2 n_iy^2`` (2a + 2b = 3b), with
+6a + 12b = 1, gives ``ORDINATE_WEIGHTS``: a = 1/30 axial, b = 1/15 non-axial.
+It is the one cubic-symmetric weighting of the 18 directions that integrates
+every polynomial of degree <= 5 over the sphere exactly (odd degrees vanish
+by symmetry; degree 2 holds for any a, b with 6a + 12b = 1; degree 4 fixes
+a = b / 2), where ``WEIGHTS`` integrates only up to degree 3
+(``sum w n_x^4`` = 1/4 instead of 1/5).
+
 Relighting hull (steele2010 sec. 3.1)
 -------------------------------------
 The 18 unit directions ``c_i / |c_i|`` are the vertices of a convex
@@ -67,8 +88,10 @@ __all__ = [
     "MULTIPLICITY",
     "NON_AXIAL",
     "OPPOSITE",
+    "ORDINATE_WEIGHTS",
     "Q",
     "REST",
+    "STEP_LENGTHS",
     "UNIT_DIRECTIONS",
     "WEIGHTS",
     "barycentric_weights",
@@ -136,6 +159,10 @@ WEIGHTS = _frozen(_M / 24.0)
 UNIT_DIRECTIONS = _frozen(
     np.vstack([np.zeros(3), _C[1:] / np.sqrt((_C[1:] ** 2).sum(axis=1, keepdims=True))])
 )
+#: (19,) float64: |c_i|, the length of one step along c_i in lattice spacings: 0, 1 x6, sqrt(2) x12.
+STEP_LENGTHS = _frozen(np.sqrt((_C**2).sum(axis=1).astype(np.float64)))
+#: (19,) float64: degree-5 quadrature weights of the unit directions (module docstring): 0, 1/30 x6, 1/15 x12; sum 1.
+ORDINATE_WEIGHTS = _frozen(np.concatenate([[0.0], np.full(6, 1.0 / 30.0), np.full(12, 1.0 / 15.0)]))
 #: (19,) int64: index of -c_i (0 for rest).
 OPPOSITE = _frozen(np.array([_TABLE.index(tuple(-np.array(c))) for c in _TABLE], dtype=np.int64))
 

@@ -8,6 +8,12 @@ then the rest component f_0 - the energy absorbed at the node in this step -
 is zeroed at every node (geist2008 sec. 3), so only the 18 moving directions
 carry state. ``f_m(r, t)`` is the density *arriving* at r along c_m; that is
 what the solver stores, and what the residual and the output are made of.
+On the default ``ordinates`` lattice (``LBProblem.lattice``; derivation in
+``collision``) the common factor rho becomes one per step length, ``f_i +
+sum_j A_ij rho_j f_j`` with rho_j = 1 - (1 - rho)^|c_j|, so a diagonal step
+attenuates over its sqrt(2) dx, and the in-scattering carries the power
+``sum_i f_i / |c_i|`` (what ``inflow``, ``outflow`` and ``absorbed`` count,
+``power_weights``); ``lattice="geist2008"`` is the paper's update.
 
 The grid is the cropped density grid; its boundary is a ghost layer just
 outside it. A slot ``f_i(r)`` whose upstream node ``r - c_i`` lies outside the
@@ -24,6 +30,26 @@ channel), with ``n_i = c_i / |c_i|``:
   Kronecker base B_k, a unit beam travelling along c_k).
 * ``base_boundary(0)`` / ``ambient_boundary()``: ``b_i = 1`` for all i
   (steele2010 sec. 3.1, ambient base B_0).
+* ``sun_source(sun_dir)`` (``Boundary.beam``): no inflow at all; see below.
+
+First-collision source
+----------------------
+A sun that is not a lattice direction cannot enter as boundary inflow
+without error: ``sun_boundary`` spreads it over up to 8 lattice directions
+(geist2008) and the lattice then carries those slanted beams, each with its
+own attenuation (issue #15: at 30 degrees the lattice's own unscattered light
+was +271 % in the deepest bin of a layer), or carries the right flux with too
+much scalar irradiance (``split="flux"``). Transport theory's first-collision
+source avoids both: the unscattered sun is attenuated exactly along its own
+direction (``beam_fields``: a march through the node densities), scattered
+once at every node into the lattice directions by the phase function, and
+that source, added after the collision in every sweep (the affine sweep T f
++ S s; BiCGSTAB takes it as its right-hand side), is all the lattice
+carries: its field is the scattered light, nothing is subtracted.
+``energy_density`` adds the exact unscattered beam at the node centres
+(``unscattered_energy``), so u is the total for every kind of right-hand
+side. For a beam along a lattice direction the two formulations agree
+exactly (the Kronecker bases of ``--bases all`` are such beams).
 
 Stability policy: reject
 ------------------------
@@ -39,12 +65,14 @@ remedy is smaller voxels (rho grows with the voxel size) or that mapping.
 
 Units: what the field means
 ---------------------------
-A lattice beam with ``f_i = 1`` is taken to be a collimated beam of irradiance
-1 on a plane perpendicular to it (the paper weights every lattice step alike,
-and so does this convention: diagonal beams are not given the sqrt(2) of their
-closer line spacing). The output per node is the total photon density
-``u = sum_i f_i`` (the "radiant energy density" the renderer samples,
-geist2008 sec. 3: "a total photon density per component at each grid node").
+A lattice beam with ``f_i = 1`` is a collimated beam of irradiance 1 on a
+plane perpendicular to it; on the ordinates lattice f_i is the irradiance
+carried by ordinate i (its lines, |c_i| times denser across the beam for the
+diagonals, carry the power f_i dx^2 / |c_i| each; ``collision``). The output
+per node is the total photon density ``u = sum_i f_i``, the scalar irradiance
+(4 pi x the mean radiance, the "actinic flux" of ``plane_parallel``): the
+"radiant energy density" the renderer samples, geist2008 sec. 3: "a total
+photon density per component at each grid node". A unit beam gives u = 1.
 
 Irradiance on a leaf. A two-sided leaf with unit normal N at the node receives
 from beam i the irradiance ``f_i |N . n_i|`` summed over its two faces (one
@@ -58,9 +86,15 @@ and ``E_scattered = (u - u_unscattered) / 2`` (``scattered_leaf_irradiance``),
 where u_unscattered is the solution of ``LBProblem.unscattered()`` (computed
 exactly in one pass by ``unscattered_energy``): the same
 lattice with sigma_s = 0 and sigma_a = sigma_t, whose per-step factor
-``1 - rho sigma_t`` is exactly the never-scattered part of the full update.
-Check: an empty grid under the sun gives u = 1 and E_leaf = 1/2, the exact
-irradiance of a randomly oriented two-sided leaf in a sun of irradiance 1.
+``1 - rho_i sigma_t`` is exactly the never-scattered part of the full update;
+for a beam it is the exact beam at the node centre, and u - u_unscattered is
+the lattice field itself. Check: an empty grid under the sun gives u = 1 and
+E_leaf = 1/2, the exact irradiance of a randomly oriented two-sided leaf in a
+sun of irradiance 1; in a uniform slab a beam's u_unscattered is the exact
+solver's direct actinic flux exp(-tau/mu0) to round-off, and the lattice's u
+its diffuse one up to the lattice's angular error (tests/unit/test_lb_slab.py,
+which also says why that error stays +20 .. +42 % in the top fifth of a
+plane-parallel layer at every resolution).
 
 Layout and kernel
 -----------------
@@ -113,8 +147,10 @@ directions that both kernels are tested against.
 Steady state
 ------------
 Every solver starts from the exact never-scattered field (``LBParams.initial``,
-``unscattered_energy``), so the direct beam is in place from sweep 0 and the
-iteration converges only the scattered light: on the example tree at 64^3 and
+``unscattered_energy``; for a beam, from its once-scattered light: the source
+carried along the lattice lines in one ordered pass, ``_once_scattered``), so
+the direct beam is in place from sweep 0 and the iteration converges only the
+scattered light: on the example tree at 64^3 and
 tolerance 1e-5 that took 140 instead of 168 sweeps for the sun and 124
 instead of 168 for the 18 bases. The steady state solves ``(I - T) f = beta`` where T is one sweep with zero
 boundary inflow and beta holds the boundary densities in the inflow slots.
@@ -154,8 +190,16 @@ import numpy as np
 from numba import njit, prange
 
 from foliage_tools.errors import EXIT_INTERNAL, FoliageError, UsageError
-from foliage_tools.lighting.collision import Medium, brown, omega, unit_moving_block
-from foliage_tools.lighting.lattice import DIRECTIONS, OPPOSITE, UNIT_DIRECTIONS, barycentric_weights
+from foliage_tools.lighting.collision import (
+    LATTICES,
+    Medium,
+    brown,
+    diagonal_density,
+    source_weights,
+    unit_moving_block,
+)
+from foliage_tools.lighting.depth import _march
+from foliage_tools.lighting.lattice import DIRECTIONS, OPPOSITE, STEP_LENGTHS, UNIT_DIRECTIONS, barycentric_weights
 
 __all__ = [
     "Boundary",
@@ -169,10 +213,15 @@ __all__ = [
     "leaf_irradiance",
     "memory_bytes",
     "relight",
+    "BeamFields",
+    "SUN_SPLITS",
+    "beam_fields",
+    "power_weights",
     "relighting_boundaries",
     "scattered_leaf_irradiance",
     "solve",
     "sun_boundary",
+    "sun_source",
     "unscattered_energy",
 ]
 
@@ -191,6 +240,7 @@ _BLOCK_VALUES = 4096
 #: ``_sweep_rows``: occupied runs at least this long collide by the parity-split products, shorter ones by the hand loop.
 _LONG_RUN_MIN = 256
 NH = NQ // 2  # opposite pairs: direction 2p + 1 is the opposite of 2p (checked in _parity_blocks)
+NAXIAL_PAIRS = 3  # pairs 0..2 are the axial directions 1..6, pairs 3..8 the non-axial 7..18
 
 
 def _parity_blocks(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -231,32 +281,78 @@ _MAX_EXTRAPOLATION_Q = 0.995
 
 @dataclass(frozen=True)
 class Boundary:
-    """One boundary condition: the density entering the grid along each moving direction."""
+    """One right-hand side: the density entering the grid along each moving direction, or a beam's first collisions."""
 
     name: str
     """``sun``, ``ambient`` or ``baseNN`` (NN = lattice index 01..18)."""
     inflow: tuple[float, ...]
     """18 values: b_i for lattice directions i = 1..18, the density of every inflow slot of direction i."""
+    beam: tuple[float, float, float] | None = None
+    """A collimated beam of irradiance 1 travelling along this unit vector, entering the grid from outside
+    (``sun_source``): the right-hand side is its first-collision source and the lattice carries only
+    scattered light (module docstring, "First-collision source"). ``inflow`` is then all zero."""
 
     def __post_init__(self) -> None:
         b = tuple(float(v) for v in self.inflow)
         object.__setattr__(self, "inflow", b)
         if len(b) != NQ or not all(math.isfinite(v) and v >= 0 for v in b):
             raise ValueError(f"a boundary needs 18 finite inflow densities >= 0, got {b}")
+        if self.beam is not None:
+            d = np.asarray(self.beam, dtype=np.float64).reshape(-1)
+            n = float(np.linalg.norm(d)) if d.size == 3 else float("nan")
+            if not (math.isfinite(n) and n > 0):
+                raise ValueError(f"a beam direction must be a finite nonzero 3-vector, got {self.beam}")
+            if any(b):
+                raise ValueError("a beam right-hand side has no boundary inflow (its light enters as the first-collision source)")
+            object.__setattr__(self, "beam", tuple(float(v) for v in d / n))
 
 
-def sun_boundary(sun_dir) -> Boundary:
-    """geist2008 sec. 3: inflow along n_i proportional to max(0, n_i . d), d = -sun_dir, summing to 1.
+#: Ways ``sun_boundary`` splits the sun over the lattice directions.
+SUN_SPLITS = ("geist2008", "flux")
 
-    ``sun_dir`` points from the tree toward the sun (the project's ``--sun``
-    convention); the light travels along ``-sun_dir``.
+
+def sun_boundary(sun_dir, split: str = "geist2008") -> Boundary:
+    """The sun as boundary inflow along lattice directions; ``sun_dir`` points from the tree toward the sun.
+
+    The light travels along d = -sun_dir.
+
+    * ``geist2008`` (sec. 3): b_i proportional to max(0, n_i . d), summing to 1, so an empty
+      grid holds u = 1 (the scalar irradiance of a unit sun). Its net flux ``sum_i b_i n_i`` is
+      shorter than d and tilted: at elevation 60 degrees it brings 0.574 instead of 0.866 through
+      a horizontal plane, and part of the light along horizontal lattice directions.
+    * ``flux``: the three directions of the hull face hit by d (``lattice.barycentric_weights``)
+      with b = M^-1 d, M their unit vectors as columns, so ``sum_i b_i n_i = d`` exactly: the
+      right flux through every plane whose normal sees all three on the same side as d. The
+      price is the scalar irradiance sum_i b_i = 1 / |hit point| in [1, 1.22] (> 1 off the
+      lattice directions), since no non-negative mix of unit vectors other than d itself has
+      both unit length and unit sum.
+
+    The first-collision source ``sun_source`` needs neither compromise.
     """
     s = np.asarray(sun_dir, dtype=np.float64).reshape(3)
     n = float(np.linalg.norm(s))
     if not (math.isfinite(n) and n > 0):
         raise ValueError(f"sun_dir must be a finite nonzero 3-vector, got {tuple(s)}")
-    dots = np.clip(UNIT_DIRECTIONS[1:] @ (-s / n), 0.0, None)  # geist2008 sec. 3
+    if split not in SUN_SPLITS:
+        raise ValueError(f"split must be one of {', '.join(SUN_SPLITS)}, got {split!r}")
+    d = -s / n
+    if split == "flux":
+        idx, _ = barycentric_weights(d)
+        cols = np.array(idx) - 1
+        b = np.zeros(NQ)
+        b[cols] = np.clip(np.linalg.solve(UNIT_DIRECTIONS[1:][cols].T, d), 0.0, None)
+        return Boundary("sun", tuple(b))
+    dots = np.clip(UNIT_DIRECTIONS[1:] @ d, 0.0, None)  # geist2008 sec. 3
     return Boundary("sun", tuple(dots / dots.sum()))
+
+
+def sun_source(sun_dir, name: str = "sun") -> Boundary:
+    """The sun (irradiance 1, ``sun_dir`` toward the sun) as a first-collision source (``Boundary.beam``)."""
+    s = np.asarray(sun_dir, dtype=np.float64).reshape(3)
+    n = float(np.linalg.norm(s))
+    if not (math.isfinite(n) and n > 0):
+        raise ValueError(f"sun_dir must be a finite nonzero 3-vector, got {tuple(s)}")
+    return Boundary(name, (0.0,) * NQ, beam=tuple(-s / n))
 
 
 def base_boundary(k: int) -> Boundary:
@@ -298,8 +394,13 @@ class LBProblem:
     """(nx, ny, nz) bool: wood-dominated ("brown") nodes (geist2008 sec. 3), or None."""
     brown_medium: Medium | None = None
     """Coefficients of brown nodes; default ``collision.brown(medium)`` (same sigma, g = -1)."""
+    lattice: str = "ordinates"
+    """``ordinates`` (true step lengths and ordinate weights) or ``geist2008`` (the paper's one density per
+    node for every step); see ``collision``. Beams (first-collision sources) need ``ordinates``."""
 
     def __post_init__(self) -> None:
+        if self.lattice not in LATTICES:
+            raise ValueError(f"lattice must be one of {', '.join(LATTICES)}, got {self.lattice!r}")
         rho = np.array(self.density, dtype=np.float64)
         if rho.ndim != 3 or min(rho.shape) < 1:
             raise ValueError(f"density must be a 3D grid, got shape {rho.shape}")
@@ -311,6 +412,9 @@ class LBProblem:
         if not bounds or not all(isinstance(b, Boundary) for b in bounds):
             raise ValueError("boundaries must be a nonempty sequence of Boundary")
         object.__setattr__(self, "boundaries", bounds)
+        if self.lattice != "ordinates" and any(b.beam is not None for b in bounds):
+            raise ValueError("a beam (first-collision source) needs the ordinates lattice: the geist2008 steps have no "
+                             "geometry to march a beam through")
         mask = None
         if self.brown_mask is not None:
             mask = np.array(self.brown_mask, dtype=bool)
@@ -333,6 +437,11 @@ class LBProblem:
             rmax = float(rho.flat[flat])
             c = int(np.argmax(med.sigma_t))
             worst = rmax * med.sigma_t[c]
+            if self.lattice == "ordinates":
+                # the non-axial steps meet leaves with rho_d = 1 - (1 - rho)^sqrt2 >= rho (needs rho <= 1)
+                worst = max(worst, float(diagonal_density(min(rmax, 1.0))) * med.sigma_t[c])
+                if rmax > 1.0:
+                    worst = max(worst, rmax)
             if worst > 1.0 + 1e-9:
                 node = tuple(int(v) for v in np.unravel_index(flat, rho.shape))
                 raise LatticeStabilityError(
@@ -356,7 +465,8 @@ class LBProblem:
 
     def unscattered(self) -> LBProblem:
         """The same problem for never-scattered light (sigma_s = 0, sigma_a = sigma_t): gives u_unscattered."""
-        return LBProblem(self.density, self.medium.unscattered(), self.boundaries, self.brown_mask, self.brown_medium.unscattered())
+        return LBProblem(self.density, self.medium.unscattered(), self.boundaries, self.brown_mask,
+                         self.brown_medium.unscattered(), self.lattice)
 
 
 @dataclass(frozen=True)
@@ -443,6 +553,9 @@ class LBResult:
     """(K, C) float64: density absorbed (moved to f_0 and removed) per sweep; inflow = outflow + absorbed at steady state."""
     history: tuple[float, ...] = field(default=(), repr=False)
     """Max relative residual at each check of plain iteration and after each BiCGSTAB iteration (diagnostics)."""
+    beam_direct: np.ndarray | None = field(default=None, repr=False)
+    """(nx, ny, nz, K, C) float64: the exact unscattered beam at the node centres for beam right-hand sides (0 for
+    the others; ``beam_fields(problem).direct``), or None without beams: what ``unscattered_energy`` gives for them."""
 
 
 # --------------------------------------------------------------------------- numba kernels
@@ -497,16 +610,22 @@ def _add_squares(F, q):  # pragma: no cover - compiled
 
 
 @njit(fastmath=True, cache=True)
-def _collide_pairs(F, c, l0, n, rexp, r0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra):  # pragma: no cover - compiled
+def _collide_pairs(F, c, l0, n, rexp, r0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pexp, p0, cE, cO, one, use_src):  # pragma: no cover - compiled
     """E = AE S and O = AO D for channel c of the run [l0, l0 + n) of F (18, C, run), summed over materials.
 
     Omega depends only on the angle between directions, so it commutes with inversion c -> -c; over
     the opposite pairs (2p, 2p + 1) it splits into an even part acting on s = f_2p + f_2p+1 and an
     odd part acting on d = f_2p - f_2p+1 (``_parity_blocks``): two (9 x 9) @ (9 x n) products
-    (``_pair_product``), half the multiply-adds of (18 x 18) @ (18 x n). The density is folded into
-    S = rho s and D = rho d (``rexp[m, r0 : r0 + n]``: rho on material m's nodes, 0 elsewhere), so
-    geist2008 eq. (2) (f_0 removed, sec. 3) is f_2p + E_p + O_p and f_2p+1 + E_p - O_p, added by the
-    caller on the way into the target slots. Materials have disjoint nodes, so their products add up.
+    (``_pair_product``), half the multiply-adds of (18 x 18) @ (18 x n). The step density is folded
+    into S = rho_p s and D = rho_p d (``rexp[m, k, r0 : r0 + n]``: rho_p on material m's nodes, 0
+    elsewhere; k = 0 for the axial pairs p < 3, 1 for the non-axial ones, which have their own
+    rho_d on the ``ordinates`` lattice), so geist2008 eq. (2) (f_0 removed, sec. 3) is f_2p + E_p +
+    O_p and f_2p+1 + E_p - O_p, added by the caller on the way into the target slots. Materials
+    have disjoint nodes, so their products add up. ``use_src``: the first-collision source of the
+    beams is added too, s_i = coef_i(m, k) power(node, k), split the same way: ``pexp[m, c, p0 : p0 +
+    n]`` is the power on material m's nodes (0 elsewhere; with one material the power itself),
+    ``cE``, ``cO`` (nmat, C, 9, run) the parity parts of the coefficients tiled along the run
+    (``_Operator``); ``one``: a single right-hand side, whose coefficients are constant along it.
     ``ae``, ``ao``: thread-local (9, 9) scratch; ``Sb, Db, Eb, Ob`` (9, n), ``extra`` >= 18 n values.
     """
     first = True
@@ -517,8 +636,8 @@ def _collide_pairs(F, c, l0, n, rexp, r0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, e
             for q in range(NH):
                 ae[p, q] = AE[m, c, p, q]
                 ao[p, q] = AO[m, c, p, q]
-        re = rexp[m, r0 : r0 + n]
         for p in range(NH):
+            re = rexp[m, 0 if p < NAXIAL_PAIRS else 1, r0 : r0 + n]
             fa = F[2 * p, c, l0 : l0 + n]
             fb = F[2 * p + 1, c, l0 : l0 + n]
             sp = Sb[p]
@@ -544,25 +663,52 @@ def _collide_pairs(F, c, l0, n, rexp, r0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, e
                 for l in range(n):
                     ep[l] += tp[l]
                     op[l] += tq[l]
+    if use_src:
+        for m in range(AE.shape[0]):
+            if not has[m]:
+                continue
+            pm = pexp[m, c, p0 : p0 + n]
+            for p in range(NH):
+                ep = Eb[p]
+                op = Ob[p]
+                if one:
+                    ce1 = cE[m, c, p, 0]
+                    co1 = cO[m, c, p, 0]
+                    for l in range(n):
+                        v = pm[l]
+                        ep[l] += ce1 * v
+                        op[l] += co1 * v
+                else:
+                    ce = cE[m, c, p, l0 : l0 + n]
+                    co = cO[m, c, p, l0 : l0 + n]
+                    for l in range(n):
+                        v = pm[l]
+                        ep[l] += ce[l] * v
+                        op[l] += co[l] * v
 
 
 @njit(parallel=True, fastmath=True, cache=True)
-def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma: no cover - compiled
+def _sweep_rows(f, out, rho, rhod, mat, A, AE, AO, mode, wt, part1, part2, pw, ct, cE, cO, use_src):  # pragma: no cover - compiled
     """One fused collision + push-streaming sweep over rows of nz * B values (long: many right-hand sides).
 
     Writes every non-inflow slot of ``out``. The layout of ``_Operator`` with one row per block (G = 1):
-    f, out, wt : (nx, ny, 18, C, nz, B); rho : (nx, ny, nz); mat : (nx, ny, nz) uint8;
-    A : (nmat, C, 18, 18) unit-density moving block of Omega (A[m, c, i, j]);
+    f, out, wt : (nx, ny, 18, C, nz, B); rho, rhod : (nx, ny, nz) step density of the axial and the
+    non-axial directions; mat : (nx, ny, nz) uint8;
+    A : (nmat, C, 18, 18) moving block of the collision (A[m, c, i, j], ``collision.unit_moving_block``);
     AE, AO : (nmat, C, 9, 9) its even and odd parts over opposite pairs (``_parity_blocks``);
     part1, part2 : (nx, C, nz*B) float64 partial sums, per x-slab and (z, b).
 
     mode 0: out = T f.
     mode 1: out = T f, part1 += (out - f)^2 and part2 += f^2 (the residual of a plain sweep).
     mode 2: out = f - T f (the BiCGSTAB operator I - T), part1 += wt * out, part2 += out^2.
+    ``use_src`` (modes 0 and 1 only): the beams' first-collision source is added (``_collide_pairs``;
+    pw (nx, ny, C, nz*B) the power per node, ct (nmat, C, 18, nz*B) the coefficients, cE, cO their
+    parity parts), so T f becomes the affine sweep T f + S s of a problem with a volume source.
     """
     nx, ny, nq, C, nz, B = f.shape
     nmat = A.shape[0]
     L = nz * B
+    add_src = use_src and mode != 2
     # (x, y, direction, channel) -> the row's run of nz * B values, viewed once here: building these
     # views per row and direction (reshape, then index) cost ~1.1x on short rows (64^3, 1 rhs)
     f5 = f.reshape((nx, ny, nq, C, L))
@@ -574,7 +720,8 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
         prod = np.empty(nq * L, dtype=f.dtype)
         extra = np.empty(nq * L, dtype=f.dtype)
         acc = np.empty((3, L), dtype=f.dtype)
-        rexp = np.empty((nmat, L), dtype=f.dtype)
+        rexp = np.empty((nmat, 2, L), dtype=f.dtype)
+        pexp = np.zeros((nmat, C, L if add_src and nmat > 1 else 1), dtype=f.dtype)
         has = np.zeros(nmat, dtype=np.bool_)
         ae = np.empty((NH, NH), dtype=f.dtype)  # thread-local copies of AE[m, c], AO[m, c]
         ao = np.empty((NH, NH), dtype=f.dtype)
@@ -583,6 +730,7 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
         sgn[1] = -1.0
         for y in range(ny):
             rr = rho[x, y]
+            rd = rhod[x, y]
             mm = mat[x, y]
             z0 = nz
             z1 = -1
@@ -603,11 +751,23 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
                 n = (z1 + 1 - z0) * B
                 for m in range(nmat):
                     if has[m]:
-                        re = rexp[m, l0 : l0 + n]
+                        re = rexp[m, 0, l0 : l0 + n]
+                        rq = rexp[m, 1, l0 : l0 + n]
                         for zz in range(z1 + 1 - z0):
-                            v = rr[z0 + zz] if mm[z0 + zz] == m else 0.0
+                            own = mm[z0 + zz] == m
+                            v = rr[z0 + zz] if own else 0.0
+                            vd = rd[z0 + zz] if own else 0.0
                             for b in range(B):
                                 re[zz * B + b] = v
+                                rq[zz * B + b] = vd
+                        if add_src and nmat > 1:
+                            for cc in range(C):
+                                pm = pexp[m, cc, l0 : l0 + n]
+                                pr = pw[x, y, cc, l0 : l0 + n]
+                                for zz in range(z1 + 1 - z0):
+                                    own = mm[z0 + zz] == m
+                                    for b in range(B):
+                                        pm[zz * B + b] = pr[zz * B + b] if own else 0.0
                 if n >= _LONG_RUN_MIN:
                     # long runs: the parity-split products (``_collide_pairs``), added to the streamed values
                     # on the way into the target slots: the post-collision row is never stored
@@ -616,7 +776,12 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
                     Eb = prod[: NH * n].reshape((NH, n))
                     Ob = prod[NH * n : 2 * NH * n].reshape((NH, n))
                     for c in range(C):
-                        _collide_pairs(F, c, l0, n, rexp, l0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra)
+                        if nmat == 1:
+                            _collide_pairs(F, c, l0, n, rexp, l0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw[x, y : y + 1],
+                                           l0, cE, cO, B == 1, add_src)
+                        else:
+                            _collide_pairs(F, c, l0, n, rexp, l0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pexp, l0, cE, cO,
+                                           B == 1, add_src)
                         # push-streaming f_i(r + c_i) = post_i(r), z-shift an offset in the row; the source
                         # run [lo, hi) splits into the pass-through head [lo, l0), the collided run
                         # [l0, l0 + n) and the pass-through tail [l0 + n, hi)
@@ -683,6 +848,7 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
                     a0 = acc[0, :n]
                     a1 = acc[1, :n]
                     a2 = acc[2, :n]
+                    sc = buf[: nq * n].reshape((nq, n))  # rho_j f_j of one material and channel
                     for c in range(C):
                         for i in range(nq):
                             h = H[i, c]
@@ -692,7 +858,12 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
                         for m in range(nmat):
                             if not has[m]:
                                 continue
-                            re = rexp[m, l0 : l0 + n]
+                            for j in range(nq):
+                                rj = rexp[m, 0 if j < 2 * NAXIAL_PAIRS else 1, l0 : l0 + n]
+                                fj = F[j, c, l0 : l0 + n]
+                                sj = sc[j]
+                                for l in range(n):
+                                    sj[l] = rj[l] * fj[l]
                             for i in range(0, nq, 3):
                                 for l in range(n):
                                     a0[l] = 0.0
@@ -702,20 +873,27 @@ def _sweep_rows(f, out, rho, mat, A, AE, AO, mode, wt, part1, part2):  # pragma:
                                     c0 = A[m, c, i, j]
                                     c1 = A[m, c, i + 1, j]
                                     c2 = A[m, c, i + 2, j]
-                                    fj = F[j, c, l0 : l0 + n]
+                                    sj = sc[j]
                                     for l in range(n):
-                                        v = fj[l]
+                                        v = sj[l]
                                         a0[l] += c0 * v
                                         a1[l] += c1 * v
                                         a2[l] += c2 * v
                                 h0 = H[i, c, l0 : l0 + n]
                                 h1 = H[i + 1, c, l0 : l0 + n]
                                 h2 = H[i + 2, c, l0 : l0 + n]
-                                # geist2008 eq. (2): f + rho * Omega f, f_0 removed (sec. 3)
+                                # geist2008 eq. (2): f + sum_j A_ij rho_j f_j, f_0 removed (sec. 3)
                                 for l in range(n):
-                                    h0[l] += re[l] * a0[l]
-                                    h1[l] += re[l] * a1[l]
-                                    h2[l] += re[l] * a2[l]
+                                    h0[l] += a0[l]
+                                    h1[l] += a1[l]
+                                    h2[l] += a2[l]
+                            if add_src:
+                                pm = pexp[m, c, l0 : l0 + n] if nmat > 1 else pw[x, y, c, l0 : l0 + n]
+                                for i in range(nq):
+                                    h = H[i, c, l0 : l0 + n]
+                                    ci = ct[m, c, i, l0 : l0 + n]
+                                    for l in range(n):
+                                        h[l] += ci[l] * pm[l]
                 src = H
             else:
                 src = F  # empty row: pass-through
@@ -884,10 +1062,11 @@ def _stream_segment(mode, o, s, fo, wo, q1, q2, a, b, d, limit, wrap_z, B, Lr, e
 
 
 @njit(parallel=True, fastmath=True, cache=True)
-def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: no cover - compiled
+def _sweep_blocks(f, out, rho, rhod, mat, AE, AO, mode, wt, part1, part2, pw, cE, cO, use_src):  # pragma: no cover - compiled
     """One fused collision + push-streaming sweep over blocks of G rows (short rows: few right-hand sides).
 
-    Writes every non-inflow slot of ``out``. f, out, wt : (nx, NB, 18, C, G*nz, K), the block layout of ``_Operator``; rho : (nx, ny, nz);
+    Writes every non-inflow slot of ``out``. f, out, wt : (nx, NB, 18, C, G*nz, K), the block layout of ``_Operator``;
+    rho, rhod : (nx, ny, nz) step density of the axial and the non-axial directions;
     mat : (nx, ny, nz) uint8; AE, AO : (nmat, C, 9, 9) the even and odd parts over opposite pairs of
     the unit-density moving block of Omega (``_parity_blocks``); part1, part2 : (nx, C, G*nz*K)
     float64 partial sums, per x-slab and position in the block's run.
@@ -895,6 +1074,8 @@ def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: 
     mode 0: out = T f.
     mode 1: out = T f, part1 += (out - f)^2 and part2 += f^2 (the residual of a plain sweep).
     mode 2: out = f - T f (the BiCGSTAB operator I - T), part1 += wt * out, part2 += out^2.
+    ``use_src`` (modes 0 and 1 only): the beams' first-collision source is added (pw (nx, NB, C, G*nz*K)
+    the power per node, cE, cO (nmat, C, 9, G*nz*K) the coefficients' parity parts; ``_collide_pairs``).
     """
     nx, nb, nq, C, gnz, B = f.shape
     ny = rho.shape[1]
@@ -903,6 +1084,7 @@ def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: 
     Lr = nz * B  # one row's run
     R = G * Lr  # one block's run
     nmat = AE.shape[0]
+    add_src = use_src and mode != 2
     f5 = f.reshape((nx, nb, nq, C, R))
     out5 = out.reshape((nx, nb, nq, C, R))
     wt5 = wt.reshape((nx, nb, nq, C, R))
@@ -910,7 +1092,8 @@ def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: 
         buf = np.empty(2 * NH * R, dtype=f.dtype)
         prod = np.empty(2 * NH * R, dtype=f.dtype)
         extra = np.empty(2 * NH * R, dtype=f.dtype)
-        rexp = np.empty((nmat, R), dtype=f.dtype)
+        rexp = np.empty((nmat, 2, R), dtype=f.dtype)
+        pexp = np.zeros((nmat, C, R if add_src and nmat > 1 else 1), dtype=f.dtype)
         has = np.zeros(nmat, dtype=np.bool_)
         save = np.empty(G * B, dtype=f.dtype)
         slots = np.empty(G, dtype=np.int64)
@@ -948,16 +1131,29 @@ def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: 
             Ob = prod[NH * n : 2 * NH * n].reshape((NH, n))
             if n > 0:
                 for m in range(nmat):
-                    re = rexp[m]
+                    re = rexp[m, 0]
+                    rq = rexp[m, 1]
                     for j in range(j0, j1):
                         g = j // nz
                         z = j - g * nz
-                        v = rho[x, y0 + g, z] if mat[x, y0 + g, z] == m else 0.0
+                        own = mat[x, y0 + g, z] == m
+                        v = rho[x, y0 + g, z] if own else 0.0
+                        vd = rhod[x, y0 + g, z] if own else 0.0
                         for b in range(B):
                             re[(j - j0) * B + b] = v
+                            rq[(j - j0) * B + b] = vd
+                        if add_src and nmat > 1:
+                            for cc in range(C):
+                                for b in range(B):
+                                    pexp[m, cc, (j - j0) * B + b] = pw[x, blk, cc, j * B + b] if own else 0.0
             for c in range(C):
                 if n > 0:
-                    _collide_pairs(F, c, l0, n, rexp, 0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra)
+                    if nmat == 1:
+                        _collide_pairs(F, c, l0, n, rexp, 0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw[x, blk : blk + 1], l0,
+                                       cE, cO, B == 1, add_src)
+                    else:
+                        _collide_pairs(F, c, l0, n, rexp, 0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pexp, 0, cE, cO, B == 1,
+                                       add_src)
                 # push-streaming f_i(r + c_i) = post_i(r): within a block a y- and z-shift is one
                 # offset of the flat run; the row that crosses into the next (previous) block goes there
                 q1 = part1[x, c]
@@ -1001,38 +1197,47 @@ def _sweep_blocks(f, out, rho, mat, AE, AO, mode, wt, part1, part2):  # pragma: 
                                         ep, op, sg, l0, l1, save, slots)
 
 
-@njit(cache=True)
-def _balance(f, rho, mat, A, sig_a, inflow_mask):  # pragma: no cover - compiled
-    """Per right-hand side (C, B): inflow, outflow and absorbed density of one sweep from f, in float64.
+@njit(parallel=True, cache=True)
+def _balance(f, rho, rhod, mat, A, sig_a, inflow_mask, wq, pw, cq, use_src):  # pragma: no cover - compiled
+    """Per right-hand side (C, B): inflow, outflow and absorbed power of one sweep from f, in float64.
 
     f in the block layout of ``_Operator``: node (x, y, z) at f[x, y // G, :, :, (y % G) * nz + z].
+    Power is ``sum_i wq_i f_i`` (wq_i = 1 / |c_i| on the ``ordinates`` lattice, 1 on ``geist2008``:
+    ``power_weights``). With ``use_src`` the inflow includes the beams' first-collision source
+    s_i = cq[m, c, i, b] pw[x, y // G, c, ((y % G) nz + z) B + b] (``_Operator``).
     """
     nx, nb, nq, C, gnz, B = f.shape
     ny = rho.shape[1]
     nz = rho.shape[2]
     G = gnz // nz
-    inflow = np.zeros((C, B))
-    outflow = np.zeros((C, B))
-    absorbed = np.zeros((C, B))
-    for x in range(nx):
+    inflow = np.zeros((nx, C, B))
+    outflow = np.zeros((nx, C, B))
+    absorbed = np.zeros((nx, C, B))
+    for x in prange(nx):
         for y in range(ny):
             yb = y // G
             for z in range(nz):
                 zb = (y % G) * nz + z
                 p = rho[x, y, z]
+                pd = rhod[x, y, z]
                 m = mat[x, y, z]
                 boundary = x == 0 or y == 0 or z == 0 or x == nx - 1 or y == ny - 1 or z == nz - 1
                 for c in range(C):
                     for b in range(B):
                         tot = 0.0
                         for j in range(nq):
-                            tot += f[x, yb, j, c, zb, b]
-                        absorbed[c, b] += p * sig_a[m, c] * tot  # moved into f_0 (geist2008 eq. 5), then removed
+                            pj = p if j < 2 * NAXIAL_PAIRS else pd
+                            tot += pj * wq[j] * f[x, yb, j, c, zb, b]
+                        absorbed[x, c, b] += sig_a[m, c] * tot  # moved into f_0 (geist2008 eq. 5), then removed
+                        pnode = float(pw[x, yb, c, zb * B + b]) if use_src else 0.0
+                        if use_src:
+                            for i in range(nq):
+                                inflow[x, c, b] += wq[i] * cq[m, c, i, b] * pnode
                         if not boundary:
                             continue
                         for i in range(nq):
                             if inflow_mask[x, y, z, i]:
-                                inflow[c, b] += f[x, yb, i, c, zb, b]
+                                inflow[x, c, b] += wq[i] * f[x, yb, i, c, zb, b]
                             tx = x + _CX[i]
                             ty = y + _CY[i]
                             tz = z + _CZ[i]
@@ -1042,10 +1247,45 @@ def _balance(f, rho, mat, A, sig_a, inflow_mask):  # pragma: no cover - compiled
                             if p > 0:
                                 s = 0.0
                                 for j in range(nq):
-                                    s += A[m, c, i, j] * f[x, yb, j, c, zb, b]
-                                h += p * s
-                            outflow[c, b] += h
-    return inflow, outflow, absorbed
+                                    pj = p if j < 2 * NAXIAL_PAIRS else pd
+                                    s += A[m, c, i, j] * pj * f[x, yb, j, c, zb, b]
+                                h += s
+                            if use_src:
+                                h += cq[m, c, i, b] * pnode
+                            outflow[x, c, b] += wq[i] * h
+    return inflow.sum(axis=0), outflow.sum(axis=0), absorbed.sum(axis=0)
+
+
+@njit(parallel=True, cache=True)
+def _once_scattered(f, att_a, att_d, power, cq, mat, ks, G):  # pragma: no cover - compiled
+    """f[., q, ., ., k] for the beam right-hand sides ks: the first-collision source carried along each lattice line.
+
+    The steady state of f_q(r) = f_q(r - c_q) att_q(r - c_q) + s_q(r - c_q) (0 in inflow slots), s_q =
+    cq[m, c, q, k] power[r, k, c], built in the order of the line (one pass per direction, exact for
+    light scattered once); att_a / att_d: the per-step survival of axial / non-axial steps (nx, ny, nz, C).
+    f in the block layout of ``_Operator``; directions in parallel (each writes only its own slots).
+    """
+    nx, ny, nz, C = att_a.shape
+    for q in prange(NQ):
+        cx, cy, cz = _CX[q], _CY[q], _CZ[q]
+        att = att_a if q < 2 * NAXIAL_PAIRS else att_d
+        for a in range(nx):
+            x = a if cx >= 0 else nx - 1 - a
+            for b in range(ny):
+                y = b if cy >= 0 else ny - 1 - b
+                for e in range(nz):
+                    z = e if cz >= 0 else nz - 1 - e
+                    ux, uy, uz = x - cx, y - cy, z - cz
+                    if ux < 0 or ux >= nx or uy < 0 or uy >= ny or uz < 0 or uz >= nz:
+                        for c in range(C):
+                            for k in ks:
+                                f[x, y // G, q, c, (y % G) * nz + z, k] = 0.0
+                    else:
+                        m = mat[ux, uy, uz]
+                        for c in range(C):
+                            for k in ks:
+                                v = f[ux, uy // G, q, c, (uy % G) * nz + uz, k] * att[ux, uy, uz, c]
+                                f[x, y // G, q, c, (y % G) * nz + z, k] = v + cq[m, c, q, k] * power[ux, uy, uz, k, c]
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -1174,14 +1414,19 @@ class _Operator:
         self.NB = -(-ny // self.G)
         self.L = self.G * nz * self.K  # a block's run
         self.state_shape = (nx, self.NB, NQ, self.C, self.G * nz, self.K)
+        self.lattice = problem.lattice
         self.rho = np.ascontiguousarray(problem.density, dtype=self.dtype)
+        # the non-axial steps' own density on the ordinates lattice (collision: rho_d = 1 - (1 - rho)^sqrt2)
+        self.rhod = (np.ascontiguousarray(diagonal_density(problem.density), dtype=self.dtype)
+                     if problem.lattice == "ordinates" else self.rho)
+        self.wq = power_weights(problem.lattice)
         self.mat = np.zeros(problem.shape, np.uint8)
         media = [problem.medium]
         if problem.brown_mask is not None and problem.brown_mask.any():
             self.mat[problem.brown_mask] = 1
             media.append(problem.brown_medium)
         self.media = tuple(media)
-        A64 = np.stack([unit_moving_block(m) for m in media])
+        A64 = np.stack([unit_moving_block(m, problem.lattice) for m in media])
         self.A = np.ascontiguousarray(A64, dtype=self.dtype)
         self.AE, self.AO = (np.ascontiguousarray(b, dtype=self.dtype) for b in _parity_blocks(A64))
         self.sig_a = np.array([m.sigma_a for m in media], dtype=np.float64)
@@ -1194,6 +1439,26 @@ class _Operator:
             up = [idx[a] - c[a] for a in range(3)]
             self.inflow_mask[..., q] = np.any([(u < 0) | (u >= n) for u, n in zip(up, problem.shape)], axis=0)
         self._parts = [np.zeros((nx, self.C, self.L)) for _ in range(3)]
+        # beams: the exact unscattered beam at every node and the power each cell takes out of it, in the
+        # kernel's run layout (nx, NB, C, G nz K); the source of direction i is cq[m, c, i, k] x that power,
+        # built on the fly by the kernels (``_collide_pairs``) instead of stored as a field of 18 directions
+        self.beam_rhs = np.array([b.beam is not None for b in problem.boundaries])
+        self.beams = beam_fields(problem) if self.beam_rhs.any() else None
+        if self.beams is None:
+            self.pw = np.zeros((nx, self.NB, 1, 1), self.dtype)  # never read (use_src False); indexable per block
+            self.cq = np.zeros((1, 1, NQ, 1))
+        else:
+            pw = self._padded(self.beams.power)  # (nx, NB, G, nz, K, C)
+            self.pw = np.ascontiguousarray(pw.transpose(0, 1, 5, 2, 3, 4).reshape(nx, self.NB, self.C, self.L), dtype=self.dtype)
+            self.cq = np.ascontiguousarray(self.beams.coef.transpose(0, 1, 3, 2))  # (nmat, C, 18, K)
+        ct = np.tile(self.cq, (1, 1, 1, self.G * nz if self.beams is not None else 1))
+        self.ct = np.ascontiguousarray(ct, dtype=self.dtype)
+        self.cE = np.ascontiguousarray(0.5 * (ct[:, :, 0::2] + ct[:, :, 1::2]), dtype=self.dtype)
+        self.cO = np.ascontiguousarray(0.5 * (ct[:, :, 0::2] - ct[:, :, 1::2]), dtype=self.dtype)
+
+    @property
+    def use_src(self) -> bool:
+        return self.beams is not None
 
     @property
     def nodes(self) -> int:
@@ -1234,13 +1499,24 @@ class _Operator:
         return f
 
     def unscattered(self, problem: LBProblem) -> np.ndarray:
-        """The never-scattered field in the kernel layout: f_q = b_q t_q (``unscattered_energy``), inflow slots = b."""
+        """The start of the iteration in the kernel layout: for boundary inflow the never-scattered field,
+        f_q = b_q t_q (``unscattered_energy``), inflow slots = b; for a beam the once-scattered light, its
+        first-collision source carried along each lattice line without further scattering (one ordered
+        pass per direction, exact for that order of scattering)."""
         f = self.zeros()
         nodes = self._nodes(f)
         for q, t in _transmittances(problem, self.bnd.any(axis=1), self.dtype):
             # t (nx, ny, nz, C) -> (nx, NB, G, C, nz, K)
             nodes[:, :, :, q] = self._padded(t).transpose(0, 1, 2, 4, 3)[..., None] * self.bnd[q].astype(self.dtype)
+        if self.beams is not None:
+            att_a, att_d = _attenuations(problem, np.float64)
+            _once_scattered(f, att_a, att_d, self.beams.power, self.cq, self.mat, np.nonzero(self.beam_rhs)[0], self.G)
         return f
+
+    def balance(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per-sweep (inflow, outflow, absorbed) power of state f, each (C, K) float64 (``_balance``)."""
+        return _balance(f, self.rho, self.rhod, self.mat, self.A, self.sig_a, self.inflow_mask, self.wq, self.pw, self.cq,
+                        self.use_src)
 
     def to_row(self, f19: np.ndarray) -> np.ndarray:
         """(nx, ny, nz, 19, K, C) -> the kernel layout (f_0 dropped)."""
@@ -1272,9 +1548,11 @@ class _Operator:
 
     def _kernel(self, f, out, mode, wt, p1, p2) -> None:
         if self.long_rows:
-            _sweep_rows(f, out, self.rho, self.mat, self.A, self.AE, self.AO, mode, wt, p1, p2)
+            _sweep_rows(f, out, self.rho, self.rhod, self.mat, self.A, self.AE, self.AO, mode, wt, p1, p2, self.pw, self.ct,
+                        self.cE, self.cO, self.use_src)
         else:
-            _sweep_blocks(f, out, self.rho, self.mat, self.AE, self.AO, mode, wt, p1, p2)
+            _sweep_blocks(f, out, self.rho, self.rhod, self.mat, self.AE, self.AO, mode, wt, p1, p2, self.pw, self.cE, self.cO,
+                          self.use_src)
 
     def sweep(self, f: np.ndarray, out: np.ndarray, *, residual: bool) -> np.ndarray | None:
         """out <- one lattice update of f (inflow slots of out untouched); per-rhs relative residual if asked."""
@@ -1500,8 +1778,10 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
     if not np.all(np.isfinite(res)):
         raise LBNumericalError(f"the lattice solve ended with a non-finite residual (solver {'+'.join(used)}); "
                                "use the solver 'iterate', and please report the input.")
-    inflow, outflow, absorbed = _balance(f, op.rho, op.mat, op.A, op.sig_a, op.inflow_mask)
+    inflow, outflow, absorbed = op.balance(f)
     energy = op.energy(f)  # (nx, ny, nz, K, C)
+    if op.beams is not None:  # a beam's lattice field is its scattered light: add the exact unscattered beam
+        energy += op.beams.direct.astype(energy.dtype)
     full = op.from_row(f) if params.keep_f else None
     return LBResult(
         energy_density=energy,
@@ -1519,6 +1799,7 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
         outflow=outflow.T.copy(),
         absorbed=absorbed.T.copy(),
         history=tuple(history),
+        beam_direct=None if op.beams is None else op.beams.direct,
     )
 
 
@@ -1562,15 +1843,15 @@ def memory_bytes(shape, nrhs: int, fields: float = PLAIN_ITERATION_FIELDS) -> fl
 def unscattered_energy(problem: LBProblem, dtype: str = "float32") -> np.ndarray:
     """Energy density u_unscattered (nx, ny, nz, K, C) of never-scattered light, exactly, in one pass.
 
-    The unscattered lattice (``problem.unscattered()``: sigma_s = 0, sigma_a =
-    sigma_t) has the diagonal moving block ``-sigma_t I`` (geist2008 eqs.
-    (5)-(7) with sigma_s = 0), so every direction evolves alone: geist2008
-    eq. (2) becomes ``f_i(r + c_i) = (1 - rho(r) sigma_t) f_i(r)``, a product
-    of per-node factors along the upstream line. Its steady state is that
-    product, which ``_transmit`` builds in one ordered pass per direction
-    instead of iterating the whole lattice (the same numbers as
-    ``solve(problem.unscattered())`` to the solver's tolerance; tested).
-    u = sum_i b_i f_i for each boundary condition's inflow b.
+    Boundary inflow: the unscattered lattice (``problem.unscattered()``: sigma_s = 0, sigma_a =
+    sigma_t) has the diagonal moving block ``-sigma_t I`` (geist2008 eqs. (5)-(7) with sigma_s =
+    0), so every direction evolves alone: geist2008 eq. (2) becomes ``f_i(r + c_i) = (1 -
+    rho_i(r) sigma_t) f_i(r)`` (rho_i = ``collision.step_density``), a product of per-node factors
+    along the upstream line. Its steady state is that product, which ``_transmit`` builds in one
+    ordered pass per direction instead of iterating the whole lattice (the same numbers as
+    ``solve(problem.unscattered())`` to the solver's tolerance; tested). u = sum_i b_i f_i for
+    each boundary condition's inflow b. A beam (``Boundary.beam``): the exactly attenuated beam
+    at each node centre, ``beam_fields(problem).direct``.
     """
     nx, ny, nz = problem.shape
     bnd = np.array([b.inflow for b in problem.boundaries], dtype=np.float64)  # (K, 18)
@@ -1578,28 +1859,146 @@ def unscattered_energy(problem: LBProblem, dtype: str = "float32") -> np.ndarray
     for q, t in _transmittances(problem, bnd.any(axis=0), dtype):
         for k in np.nonzero(bnd[:, q])[0]:
             energy[..., k, :] += np.asarray(bnd[k, q], dtype) * t
+    if any(b.beam is not None for b in problem.boundaries):
+        energy += beam_fields(problem).direct.astype(dtype)
     return energy
+
+
+def _attenuations(problem: LBProblem, dtype) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step survival 1 - rho_q sigma_t (nx, ny, nz, C) of the axial and of the non-axial directions."""
+    out = []
+    for rho in (problem.density, diagonal_density(problem.density) if problem.lattice == "ordinates" else problem.density):
+        att = 1.0 - rho[..., None] * np.array(problem.medium.sigma_t, dtype=np.float64)  # green nodes
+        if problem.brown_mask is not None:
+            att[problem.brown_mask] = 1.0 - rho[problem.brown_mask][:, None] * np.array(problem.brown_medium.sigma_t)
+        out.append(np.ascontiguousarray(att, dtype=dtype))
+    return out[0], out[1]
 
 
 def _transmittances(problem: LBProblem, wanted: np.ndarray, dtype):
     """Yield (q, t_q) for the wanted directions q: t_q (nx, ny, nz, C) from ``_transmit`` (one buffer, reused)."""
-    sig_t = np.array(problem.medium.sigma_t, dtype=np.float64)
-    att = 1.0 - problem.density[..., None] * sig_t  # per-step survival 1 - rho sigma_t at green nodes
-    if problem.brown_mask is not None:
-        att[problem.brown_mask] = 1.0 - problem.density[problem.brown_mask][:, None] * np.array(problem.brown_medium.sigma_t)
-    att = np.ascontiguousarray(att, dtype=dtype)
-    t = np.empty(att.shape, dtype)
+    if not np.any(wanted):
+        return
+    att = _attenuations(problem, dtype)
+    t = np.empty(att[0].shape, dtype)
     for q in range(NQ):
         if wanted[q]:
-            _transmit(att, int(_CX[q]), int(_CY[q]), int(_CZ[q]), t)
+            _transmit(att[q >= 6], int(_CX[q]), int(_CY[q]), int(_CZ[q]), t)
             yield q, t
+
+
+def power_weights(lattice: str) -> np.ndarray:
+    """(18,) wq_i with power ``sum_i wq_i f_i``: 1 / |c_i| on the ``ordinates`` lattice (a line of
+    direction c_i stands for the cross-section dx^2 / |c_i|, ``collision``), 1 on ``geist2008``
+    (which conserves the density sum)."""
+    if lattice not in LATTICES:
+        raise ValueError(f"lattice must be one of {', '.join(LATTICES)}, got {lattice!r}")
+    return 1.0 / STEP_LENGTHS[1:] if lattice == "ordinates" else np.ones(NQ)
+
+
+# --------------------------------------------------------------------------- first-collision source of a beam
+
+#: Largest optical depth per lattice spacing used for a node: rho sigma_t = 1 ("all light interacts") would
+#: be infinite; e^-40 ~ 4e-18 is zero in float32 and keeps the march finite.
+EXT_MAX = 40.0
+
+
+@njit(parallel=True, cache=True)
+def _march_nodes(ext, dx, dy, dz, out):  # pragma: no cover - compiled
+    """out[r] = integral of ext from the centre of node r along (dx, dy, dz) to the grid's edge (index units)."""
+    nx, ny, nz = ext.shape
+    for i in prange(nx):
+        for j in range(ny):
+            for k in range(nz):
+                out[i, j, k] = _march(ext, i + 0.5, j + 0.5, k + 0.5, dx, dy, dz)
+
+
+@dataclass(frozen=True, eq=False)
+class BeamFields:
+    """The exact unscattered beams of a problem and their first-collision sources (``beam_fields``)."""
+
+    direct: np.ndarray
+    """(nx, ny, nz, K, C) float64: irradiance of the unscattered beam at each node centre (0 for non-beam rhs)."""
+    power: np.ndarray
+    """(nx, ny, nz, K, C) float64: power the beam loses in each node's cell, per unit beam irradiance and
+    cell volume (lattice spacing 1)."""
+    coef: np.ndarray
+    """(nmat, C, K, 18) float64: ``(sigma_s / sigma_t) q_i(d) |c_i|``, so the source of direction i is coef x power."""
+
+    def source(self, q: int, mat: np.ndarray) -> np.ndarray:
+        """(nx, ny, nz, C, K) post-collision source s_q of moving direction q (= lattice index q + 1)."""
+        return self.coef[:, :, :, q][mat] * self.power.transpose(0, 1, 2, 4, 3)
+
+
+def beam_fields(problem: LBProblem) -> BeamFields:
+    """The first-collision source of every beam of ``problem`` (``Boundary.beam``), exactly attenuated.
+
+    A unit beam travelling along d enters the grid from outside. Its optical depth per lattice
+    spacing at node r is ``ext = -ln(1 - rho sigma_t)`` (per channel and material; the axial
+    per-step survival 1 - rho sigma_t of the lattice exactly, e^-ext; ``EXT_MAX`` caps it), and
+    ``depth._march`` integrates it exactly (piecewise constant per cell, Amanatides-Woo) from each
+    node centre toward the light, giving tau_c(r). Then, with l_d = 1 / max_k |d_k| the chord of d
+    through the centre of a cell and tau_up = tau_c - ext l_d / 2 the depth at the cell's upstream
+    face,
+
+        direct(r) = exp(-tau_c)                                  (the beam at the node centre)
+        power(r)  = exp(-tau_up) (1 - exp(-ext l_d)) / l_d       (what the cell takes out of it)
+        s_i(r)    = (sigma_s / sigma_t) q_i(d) |c_i| power(r)     (``source_weights``; post-collision)
+
+    power is the beam's loss along the chord through the centre times the beam's cross-section
+    1 / l_d per unit cell volume (-> ext exp(-tau_c) for thin cells); s_i is its scattered share
+    in direction i handed to the lattice line of c_i as power, i.e. divided by that line's
+    cross-section 1 / |c_i| (``collision``, "In-scattering"). For d = n_j (a lattice direction)
+    and sigma_t = 1, exp(-tau_up) and 1 - exp(-ext l_d) are exactly the lattice's arriving
+    unscattered f_j and its rho_j, so the scattered field is exactly that of the Kronecker
+    boundary ``base_boundary(j)`` (tested).
+    """
+    nx, ny, nz = problem.shape
+    K, C = len(problem.boundaries), problem.channels
+    media = [problem.medium] + ([problem.brown_medium] if problem.brown_mask is not None and problem.brown_mask.any() else [])
+    mat = np.zeros(problem.shape, np.intp)
+    if len(media) == 2:
+        mat[problem.brown_mask] = 1
+    sig_t = np.array([m.sigma_t for m in media])  # (nmat, C)
+    direct = np.zeros((nx, ny, nz, K, C))
+    power = np.zeros((nx, ny, nz, K, C))
+    coef = np.zeros((len(media), C, K, NQ))
+    L = STEP_LENGTHS[1:]
+    exts = {}
+    for c in range(C):
+        key = tuple(sig_t[:, c])
+        if key not in exts:
+            with np.errstate(divide="ignore"):
+                e = -np.log(np.clip(1.0 - problem.density * sig_t[mat, c], 0.0, None))
+            exts[key] = np.ascontiguousarray(np.minimum(e, EXT_MAX))
+    tau = np.empty(problem.shape)
+    for k, b in enumerate(problem.boundaries):
+        if b.beam is None:
+            continue
+        d = np.asarray(b.beam)
+        chord = 1.0 / float(np.abs(d).max())
+        for mi, m in enumerate(media):
+            for c in range(C):
+                st = m.sigma_t[c]
+                if st > 0.0:
+                    coef[mi, c, k] = (m.sigma_s[c] / st) * source_weights(d, m.g[c], m.phase, "ordinates") * L
+        done = {}
+        for c in range(C):
+            key = tuple(sig_t[:, c])
+            if key not in done:
+                ext = exts[key]
+                _march_nodes(ext, -d[0], -d[1], -d[2], tau)
+                up = np.maximum(tau - 0.5 * chord * ext, 0.0)
+                done[key] = (np.exp(-tau), np.exp(-up) * -np.expm1(-chord * ext) / chord)
+            direct[..., k, c], power[..., k, c] = done[key]
+    return BeamFields(direct, power, coef)
 
 
 # --------------------------------------------------------------------------- reference update
 
 
 def _reference_step(f: np.ndarray, problem: LBProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One update of geist2008 eq. (2) in plain numpy, on all 19 directions.
+    """One update of geist2008 eq. (2) in plain numpy (the kernels are tested against it).
 
     Parameters
     ----------
@@ -1608,18 +2007,31 @@ def _reference_step(f: np.ndarray, problem: LBProblem) -> tuple[np.ndarray, np.n
     Returns
     -------
     f_next : (nx, ny, nz, 19, K, C), inflow slots holding the boundary densities
-    absorbed : (nx, ny, nz, K, C), the f_0 removed at each node (geist2008 sec. 3)
-    outflow : (K, C), density that left the grid
+    absorbed : (nx, ny, nz, K, C), the power removed at each node (booked into f_0 and zeroed,
+        geist2008 sec. 3), in ``power_weights`` units
+    outflow : (K, C), power that left the grid
+
+    The collision is ``f_i + sum_j A_ij rho_j f_j`` (``collision.unit_moving_block`` and
+    ``step_density`` of the problem's lattice: on ``geist2008`` this is f + rho Omega f of eqs.
+    (5)-(9) with f_0 removed), plus the first-collision source of any beam (``beam_fields``).
     """
+    from foliage_tools.lighting.collision import step_density
+
     rho = problem.density
     media = [problem.medium, problem.brown_medium]
-    # geist2008 eqs. (5)-(9) per material and channel, unit density
-    om = np.array([[omega(1.0, a, s, g) for a, s, g in zip(m.sigma_a, m.sigma_s, m.g)] for m in media])
+    A = np.array([unit_moving_block(m, problem.lattice) for m in media])  # (2, C, 18, 18)
     mat = np.zeros(rho.shape, int) if problem.brown_mask is None else problem.brown_mask.astype(int)
-    # geist2008 eq. (2): post = f + rho * Omega f, per node and channel
-    post = f + rho[..., None, None, None] * np.einsum("xyzcij,xyzjkc->xyzikc", om[mat], f)
-    absorbed = post[..., 0, :, :].copy()  # geist2008 sec. 3: f_0 is zeroed on each iteration
-    post[..., 0, :, :] = 0.0
+    rq = step_density(rho, problem.lattice)  # (nx, ny, nz, 18)
+    moving = f[..., 1:, :, :]
+    post = np.zeros_like(f)
+    post[..., 1:, :, :] = moving + np.einsum("xyzcij,xyzjkc->xyzikc", A[mat], rq[..., :, None, None] * moving)
+    if any(b.beam is not None for b in problem.boundaries):
+        bf = beam_fields(problem)
+        for q in range(NQ):
+            post[..., q + 1, :, :] += bf.source(q, mat).transpose(0, 1, 2, 4, 3)
+    wq = power_weights(problem.lattice)
+    sig_a = np.array([m.sigma_a for m in media])[mat]  # (nx, ny, nz, C)
+    absorbed = np.einsum("xyzj,xyzjkc->xyzkc", rq * wq, moving) * sig_a[..., None, :]
     nxt = np.zeros_like(f)
     outflow = np.zeros(f.shape[-2:])
     bnd = np.array([b.inflow for b in problem.boundaries])  # (K, 18)
@@ -1630,7 +2042,7 @@ def _reference_step(f: np.ndarray, problem: LBProblem) -> tuple[np.ndarray, np.n
         nxt[..., i, :, :] = bnd[:, i - 1][:, None]  # inflow slots; overwritten where an upstream node exists
         moved = post[src + (i,)]
         nxt[dst + (i,)] = moved
-        outflow += post[..., i, :, :].sum(axis=(0, 1, 2)) - moved.sum(axis=(0, 1, 2))
+        outflow += wq[i - 1] * (post[..., i, :, :].sum(axis=(0, 1, 2)) - moved.sum(axis=(0, 1, 2)))
     return nxt, absorbed, outflow
 
 

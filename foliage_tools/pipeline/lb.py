@@ -7,6 +7,18 @@ conditions (``--bases all``: the 18 Kronecker bases, ambient = their sum),
 plus the never-scattered field (``lb.unscattered_energy``, exact, one pass)
 that separates direct from scattered light.
 
+Defaults (issue #15, measured in tests/integration/test_lb_layer.py and
+tests/unit/test_lb_slab.py): the ``ordinates`` lattice (a diagonal step is
+attenuated over its sqrt(2) Δx), the bi-Lambertian phase function of the
+leaves on the lattice, and for ``--bases sun`` the sun as a first-collision
+source (``lb.sun_source``: the exactly attenuated sun scattered once at every
+node; the lattice carries only what is scattered after that). The paper's
+setting is ``lattice="geist2008", sun_source="boundary", phase="hg"``. On the
+issue's uniform layer at --resolution 64 the default is within 2-14 % of the
+exact E_scattered in the three inner depth bins but +12 .. +24 % in the top
+and +7 .. +27 % in the bottom bin (the lattice's angular discretisation; the
+paper's setting: -22 .. +84 %).
+
 Per-leaf conversion (documented in lighting.lb): a randomly oriented two-sided
 leaf at a node receives E = u/2; the scattered part is (u − u_unscattered)/2,
 sampled trilinearly at the leaf centre. E_direct = |n·s| × u_unscattered(centre):
@@ -27,7 +39,7 @@ from foliage_tools.errors import UsageError
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.geometry.voxelize import GridSpec
 from foliage_tools.lighting import lb
-from foliage_tools.lighting.collision import Medium, brown, density_from_lad, leaf_medium
+from foliage_tools.lighting.collision import LATTICES, PHASES, Medium, brown, density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path, volume_path
@@ -41,6 +53,10 @@ from foliage_tools.scene.vdb import Grid
 from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, stage_metadata, write_layer
 
 BASES = ("sun", "all")
+#: How the sun enters a ``--bases sun`` bake (lighting.lb): ``first-collision`` (the exactly attenuated sun
+#: scattered once at every node, the lattice carrying what is scattered after that) or ``boundary``
+#: (geist2008 sec. 3: the sun split over lattice directions as boundary inflow, scattered = u - u_unscattered).
+SUN_SOURCES = ("first-collision", "boundary")
 #: Nodes whose wood fraction exceeds this are "brown" (g = −1, geist2008 sec. 3).
 BROWN_WOOD_FRACTION = 0.5
 
@@ -65,8 +81,27 @@ class LBBakeParams:
     """Sweeps after which the solver stops short of ``tolerance`` (the bake then fails its accuracy check: exit 1)."""
     direct: DirectChoice = DirectChoice()
     """``--direct``: what ``primvars:foliage:lb:direct`` holds (exact shadow rays by default, or the lattice's own)."""
+    lattice: str = "ordinates"
+    """``ordinates`` (true step lengths: a diagonal step attenuates over sqrt2 dx) or the paper's ``geist2008``."""
+    sun_source: str = "first-collision"
+    """``first-collision`` or ``boundary`` (``SUN_SOURCES``); ``--bases all`` always uses boundary bases."""
+    sun_split: str = "geist2008"
+    """``sun_source="boundary"``: how the sun is split over lattice directions (``lb.sun_boundary``)."""
+    phase: str = "bilambertian"
+    """Discrete phase function (``collision.PHASES``): the leaves' ``bilambertian`` or geist2008's ``hg``."""
 
     def __post_init__(self) -> None:
+        if self.lattice not in LATTICES:
+            raise UsageError(f"lattice must be one of {', '.join(LATTICES)}, got {self.lattice!r}.")
+        if self.sun_source not in SUN_SOURCES:
+            raise UsageError(f"sun source must be one of {', '.join(SUN_SOURCES)}, got {self.sun_source!r}.")
+        if self.sun_source == "first-collision" and self.lattice != "ordinates":
+            raise UsageError("the first-collision sun source needs the ordinates lattice (use sun_source='boundary' "
+                             "with the geist2008 lattice).")
+        if self.sun_split not in lb.SUN_SPLITS:
+            raise UsageError(f"sun split must be one of {', '.join(lb.SUN_SPLITS)}, got {self.sun_split!r}.")
+        if self.phase not in PHASES:
+            raise UsageError(f"phase must be one of {', '.join(PHASES)}, got {self.phase!r}.")
         if self.bases not in BASES:
             raise UsageError(f"--bases must be one of {', '.join(BASES)}, got {self.bases!r}.")
         if not (0 < self.tolerance < 1):
@@ -133,14 +168,23 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
         dens = compute_density(proto, DensityParams(resolution=params.resolution, method="area"))
     grid = dens.grid
     rho = density_from_lad(dens.density, grid.voxel_size)
-    medium = leaf_medium(params.optics, absorption_scale=params.absorption_scale)
+    medium = leaf_medium(params.optics, absorption_scale=params.absorption_scale, phase=params.phase)
     mask = dens.wood_fraction > BROWN_WOOD_FRACTION
     # steele2010 sec. 3.1: the ambient base B_0 (inflow 1 along every direction) is, by linearity of
     # geist2008 eq. (2), the sum of the 18 Kronecker bases: solve 18 and add them up (5% less work).
-    boundaries = (lb.sun_boundary(sun_local),) if params.bases == "sun" else lb.relighting_boundaries()[1:]
+    # (A Kronecker base is a beam along a lattice line, which the ordinates lattice attenuates exactly, so
+    # its boundary form already is its first-collision form: see lb.beam_fields.)
+    first_collision = params.bases == "sun" and params.sun_source == "first-collision"
+    if params.bases == "sun":
+        boundaries = (lb.sun_source(sun_local) if first_collision else lb.sun_boundary(sun_local, params.sun_split),)
+    else:
+        boundaries = lb.relighting_boundaries()[1:]
     problem = lb.LBProblem(density=rho, medium=medium, boundaries=boundaries,
-                           brown_mask=mask if mask.any() else None, brown_medium=brown(medium) if mask.any() else None)
-    need, free = lb.memory_bytes(grid.shape, len(boundaries) * medium.channels), available_memory()
+                           brown_mask=mask if mask.any() else None, brown_medium=brown(medium) if mask.any() else None,
+                           lattice=params.lattice)
+    # + the beam arrays (lb.BeamFields: direct and power in float64, the power again in the run layout): ~0.3 field
+    fields = lb.PLAIN_ITERATION_FIELDS + (0.3 if first_collision else 0.0)
+    need, free = lb.memory_bytes(grid.shape, len(boundaries) * medium.channels, fields), available_memory()
     if need > free:
         raise UsageError(
             f"prototype <{proto.path}>: the LB solve on a {'x'.join(map(str, grid.shape))} grid with "
@@ -155,7 +199,10 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
         total = np.concatenate([total.sum(axis=-2, keepdims=True), total], axis=-2)
         problem = replace(problem, boundaries=lb.relighting_boundaries())
     t_un = time.perf_counter()
-    unscattered = lb.unscattered_energy(problem)  # exact one-pass transport, no lattice iteration
+    if first_collision:  # the exact beam the solve attenuated for its source
+        unscattered = res.beam_direct.astype(np.float32)
+    else:
+        unscattered = lb.unscattered_energy(problem)  # exact one-pass transport, no lattice iteration
     t_un = time.perf_counter() - t_un
     if params.bases == "sun":
         sun_total, sun_un = total[..., 0, :], unscattered[..., 0, :]

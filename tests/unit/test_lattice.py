@@ -1,6 +1,7 @@
 """D3Q19 lattice and relighting hull (foliage_tools.lighting.lattice)."""
 
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -59,7 +60,7 @@ def test_lattice_is_symmetric_and_isotropic_to_second_order():
     np.testing.assert_allclose(np.linalg.norm(L.UNIT_DIRECTIONS[1:], axis=1), 1.0, rtol=1e-15)
 
 
-@pytest.mark.parametrize("name", ["DIRECTIONS", "MULTIPLICITY", "WEIGHTS", "UNIT_DIRECTIONS", "OPPOSITE", "HULL_TRIANGLES"])
+@pytest.mark.parametrize("name", ["DIRECTIONS", "MULTIPLICITY", "WEIGHTS", "UNIT_DIRECTIONS", "OPPOSITE", "HULL_TRIANGLES", "STEP_LENGTHS", "ORDINATE_WEIGHTS"])
 def test_tables_are_immutable(name):
     arr = getattr(L, name)
     with pytest.raises(ValueError):
@@ -141,3 +142,43 @@ def test_weights_are_lipschitz_everywhere(d, delta):
 def test_barycentric_rejects_zero_direction():
     with pytest.raises(ValueError, match="nonzero"):
         L.barycentric_weights((0, 0, 0))
+
+
+def _sphere_mean(a, b, c):
+    """Mean of x^a y^b z^c over the unit sphere: 0 if any exponent is odd, else (a-1)!!(b-1)!!(c-1)!!/(a+b+c+1)!!."""
+    if a % 2 or b % 2 or c % 2:
+        return 0.0
+
+    def dfact(n):
+        return math.prod(range(n, 0, -2)) if n > 0 else 1
+
+    return dfact(a - 1) * dfact(b - 1) * dfact(c - 1) / dfact(a + b + c + 1)
+
+
+def test_ordinate_weights_integrate_every_polynomial_of_degree_five():
+    """The ordinate weights 1/30, 1/15 are the degree-5 quadrature of the 18 unit directions (lattice docstring);
+    geist2008's 1/12, 1/24 are exact only to degree 3 (the fourth moments of the velocities c_i, not of n_i)."""
+    n = L.UNIT_DIRECTIONS[1:]
+    w, wg = L.ORDINATE_WEIGHTS[1:], L.WEIGHTS[1:]
+    assert w.sum() == pytest.approx(1.0, abs=1e-15) and L.ORDINATE_WEIGHTS[0] == 0.0
+    worst_geist = 0.0
+    for a, b, c in itertools.product(range(6), repeat=3):
+        if a + b + c > 5:
+            continue
+        mono = n[:, 0] ** a * n[:, 1] ** b * n[:, 2] ** c
+        assert w @ mono == pytest.approx(_sphere_mean(a, b, c), abs=1e-15), (a, b, c)
+        if a + b + c <= 3:
+            assert wg @ mono == pytest.approx(_sphere_mean(a, b, c), abs=1e-15), (a, b, c)
+        else:
+            worst_geist = max(worst_geist, abs(wg @ mono - _sphere_mean(a, b, c)))
+    assert worst_geist == pytest.approx(0.05)  # sum w n_x^4 = 1/4 instead of 1/5
+    # the lattice-gas condition geist2008's weights do meet: isotropic fourth moments of the velocities c_i
+    c = L.DIRECTIONS[1:].astype(float)
+    assert wg @ c[:, 0] ** 4 == pytest.approx(3 * wg @ (c[:, 0] ** 2 * c[:, 1] ** 2))
+
+
+def test_step_lengths():
+    np.testing.assert_array_equal(L.STEP_LENGTHS[1:7], 1.0)
+    np.testing.assert_allclose(L.STEP_LENGTHS[7:], math.sqrt(2.0), rtol=1e-15)
+    assert L.STEP_LENGTHS[0] == 0.0
+    np.testing.assert_allclose(L.STEP_LENGTHS, np.linalg.norm(L.DIRECTIONS, axis=1), rtol=1e-15)

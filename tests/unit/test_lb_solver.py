@@ -32,8 +32,20 @@ from foliage_tools.lighting.collision import (
     leaf_medium,
     omega,
     omega_isotropic,
+    phase_weights,
+    source_weights,
+    step_density,
+    diagonal_density,
+    unit_moving_block,
 )
-from foliage_tools.lighting.lattice import DIRECTIONS, OPPOSITE, UNIT_DIRECTIONS, barycentric_weights
+from foliage_tools.lighting.lattice import (
+    DIRECTIONS,
+    OPPOSITE,
+    ORDINATE_WEIGHTS,
+    UNIT_DIRECTIONS,
+    barycentric_weights,
+    direction_index,
+)
 from foliage_tools.lighting.lb import (
     Boundary,
     LatticeStabilityError,
@@ -42,17 +54,19 @@ from foliage_tools.lighting.lb import (
     _BLOCK_VALUES,
     _LONG_RUN_MIN,
     _ROW_KERNEL_MIN,
-    _balance,
     _Operator,
     _reference_step,
     ambient_boundary,
     base_boundary,
+    beam_fields,
     leaf_irradiance,
+    power_weights,
     relight,
     relighting_boundaries,
     scattered_leaf_irradiance,
     solve,
     sun_boundary,
+    sun_source,
     unscattered_energy,
 )
 
@@ -155,6 +169,66 @@ def test_density_from_lad_is_beer_lambert_per_step():
         density_from_lad(np.array([-1.0]), 1.0)
 
 
+phases = st.sampled_from(["hg", "bilambertian"])
+
+
+@settings(max_examples=200, deadline=None)
+@given(unit, unit, gs, phases)
+def test_ordinates_block_conserves_power_and_is_nonnegative(sigma_a, sigma_s, g, phase):
+    """The ordinates collision (collision docstring) conserves the power sum_i f_i / |c_i|: its weighted
+    column sums are -sigma_a / |c_j| for every sigma, g and phase, and its off-diagonal part is >= 0."""
+    A = unit_moving_block(Medium((sigma_a,), (sigma_s,), (g,), phase=phase), "ordinates")[0]
+    size = np.sqrt((DIRECTIONS[1:] ** 2).sum(axis=1))
+    np.testing.assert_allclose((A / size[:, None]).sum(axis=0), -sigma_a / size, atol=1e-14)
+    assert (A[~np.eye(18, dtype=bool)] >= 0).all()
+    # with the step densities rho_j <= 1 and sigma_t <= 1 the update I + A diag(rho_j) is non-negative
+    rq = step_density(0.9, "ordinates")
+    if sigma_a + sigma_s <= 1.0:
+        assert ((np.eye(18) + A * rq[None, :]) >= -1e-15).all()
+
+
+@settings(max_examples=100, deadline=None)
+@given(gs, phases, st.sampled_from(["ordinates", "geist2008"]))
+def test_phase_weights_are_distributions_and_the_source_weights_their_columns(g, phase, lattice):
+    P = phase_weights(g, phase, lattice)
+    assert (P >= 0).all()
+    np.testing.assert_allclose(P.sum(axis=0), 1.0, rtol=1e-14)
+    n = UNIT_DIRECTIONS[1:]
+    for j in (0, 5, 6, 17):
+        np.testing.assert_allclose(source_weights(n[j], g, phase, lattice), P[:, j], atol=1e-14)
+    if phase == "hg" and lattice == "geist2008":
+        np.testing.assert_array_equal(P, hg_weights(g))
+
+
+def test_bilambertian_weights_follow_the_canopy_phase_function():
+    """phase="bilambertian" is eq. (8) with the leaves' own phase function (phase.BiLambertianCanopyPhase,
+    what the exact slab solver and the Monte Carlo reference use), r^ = (1 - g) / 2."""
+    from foliage_tools.lighting.phase import canopy_bilambertian_phase
+
+    n = UNIT_DIRECTIONS[1:]
+    w = ORDINATE_WEIGHTS[1:]
+    for r, t in ((0.45, 0.45), (0.07, 0.055), (0.3, 0.0)):
+        g = (t - r) / (t + r)
+        d = np.array([0.3, -0.2, -0.9]) / np.linalg.norm([0.3, -0.2, -0.9])
+        p = canopy_bilambertian_phase(reflectance=r, transmittance=t)(n @ d)
+        np.testing.assert_allclose(source_weights(d, g, "bilambertian"), w * p / (w * p).sum(), rtol=1e-12)
+    # wood ("brown", g = -1) then reflects only: nothing goes forward
+    assert source_weights((0, 0, -1), -1.0, "bilambertian")[direction_index((0, 0, -1)) - 1] == 0.0
+
+
+def test_step_density_is_beer_lambert_over_each_step_length():
+    lad, dx = np.array([0.0, 0.3, 2.0, 50.0]), 0.1
+    rho = density_from_lad(lad, dx)
+    np.testing.assert_allclose(1 - diagonal_density(rho), np.exp(-LEAF_ANGLE_G * lad * math.sqrt(2) * dx), rtol=1e-13)
+    rq = step_density(rho, "ordinates")
+    np.testing.assert_array_equal(rq[:, :6], rho[:, None] * np.ones(6))
+    np.testing.assert_array_equal(rq[:, 6:], diagonal_density(rho)[:, None] * np.ones(12))
+    np.testing.assert_array_equal(step_density(rho, "geist2008"), rho[:, None] * np.ones(18))
+    assert diagonal_density(1.0) == 1.0 and diagonal_density(0.0) == 0.0
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        diagonal_density(1.5)
+
+
 def test_unstable_density_is_rejected_with_the_offending_value():
     rho = np.zeros((4, 4, 4))
     rho[1, 2, 3] = 1.25
@@ -180,26 +254,46 @@ def test_params_are_checked():
 # --------------------------------------------------------------------------- kernel vs reference
 
 
-def _problem_random(rng, shape=(7, 6, 5)):
+#: The lattices every kernel test runs on: the default ordinates lattice with a beam (first-collision source) among
+#: its right-hand sides, and the paper's geist2008 lattice with boundary inflow only.
+LATTICES = ["ordinates", "geist2008"]
+
+
+def _bounds(lattice):
+    sun = sun_source((0.2, -0.5, 0.8)) if lattice == "ordinates" else sun_boundary((0.2, -0.5, 0.8))
+    return (sun, base_boundary(9), ambient_boundary())
+
+
+def _problem_random(rng, shape=(7, 6, 5), lattice="ordinates"):
     rho = rng.uniform(0, 1, shape)
     rho[rng.uniform(size=shape) < 0.3] = 0.0
     med = Medium(sigma_a=(0.1, 0.3, 0.02), sigma_s=(0.85, 0.6, 0.97), g=(0.4, -0.7, 0.0))
-    bounds = (sun_boundary((0.2, -0.5, 0.8)), base_boundary(9), ambient_boundary())
-    return LBProblem(rho, med, bounds, brown_mask=rng.uniform(size=shape) < 0.2)
+    return LBProblem(rho, med, _bounds(lattice), brown_mask=rng.uniform(size=shape) < 0.2, lattice=lattice)
 
 
+def _source_power(pb):
+    """(K, C) power per sweep the beams' first-collision sources put into the lattice."""
+    if not any(b.beam is not None for b in pb.boundaries):
+        return 0.0
+    bf, wq = beam_fields(pb), power_weights(pb.lattice)
+    mat = np.zeros(pb.shape, int) if pb.brown_mask is None else pb.brown_mask.astype(int)
+    return sum(wq[q] * bf.source(q, mat).sum(axis=(0, 1, 2)).T for q in range(18))
+
+
+@pytest.mark.parametrize("lattice", LATTICES)
 @pytest.mark.parametrize("dtype, tol", [("float32", 1e-6), ("float64", 1e-13)])
 @pytest.mark.parametrize(
     "shape, blocks",
     [((7, 6, 5), (6, 1)), ((3, 9, 300), (4, 3)), ((3, 4, 700), (1, 4))],
     ids=["one-block", "blocks-of-4-rows-last-partial", "rows"],
 )
-def test_fast_kernel_matches_reference_step(rng, dtype, tol, shape, blocks):
+def test_fast_kernel_matches_reference_step(rng, dtype, tol, shape, blocks, lattice):
     """Every kernel path (``_Operator``): short rows (9 rhs) swept in blocks of rows by
     ``_sweep_blocks``, all in one block or in several with a partial last one (streaming across
     block edges); long rows by ``_sweep_rows``, whose occupied runs collide by the parity-split
-    products when long and by the hand loop when short. Two materials, sparse occupancy."""
-    pb = _problem_random(rng, shape)
+    products when long and by the hand loop when short. Two materials, sparse occupancy. On the
+    ordinates lattice one right-hand side is a beam, whose first-collision source the kernels add."""
+    pb = _problem_random(rng, shape, lattice)
     if blocks[0] == 1:
         rho = pb.density.copy()
         rho[0, 0] = 0.0
@@ -224,27 +318,33 @@ def test_fast_kernel_matches_reference_step(rng, dtype, tol, shape, blocks):
     np.testing.assert_allclose(op.from_row(out), ref, rtol=0, atol=tol * np.abs(ref).max())
     expect = np.sqrt(((ref - f19) ** 2).sum(axis=(0, 1, 2, 3)) / (f19**2).sum(axis=(0, 1, 2, 3)))
     np.testing.assert_allclose(res.T, expect, rtol=max(tol * 100, 1e-12))
-    # per-sweep energy bookkeeping of the same state
-    inflow, out_b, abs_b = _balance(row, op.rho, op.mat, op.A, op.sig_a, op.inflow_mask)
+    # per-sweep energy bookkeeping of the same state, in power (sum_i wq_i f_i: wq = 1 on geist2008, 1 / |c_i| on
+    # the ordinates lattice, whose collision conserves that instead of the density sum; ``collision``)
+    inflow, out_b, abs_b = op.balance(row)
     np.testing.assert_allclose(abs_b.T, absorbed.sum(axis=(0, 1, 2)), rtol=tol * 10)
     np.testing.assert_allclose(out_b.T, outflow, rtol=tol * 10)
-    slots = op.inflow_mask.sum(axis=(0, 1, 2))  # inflow slots per direction
-    np.testing.assert_allclose(inflow.T, (slots @ op.bnd)[:, None] * np.ones(3), rtol=tol * 10)
-    # mass budget of the step (Omega's zero column sums): sum(next) = sum(f) - absorbed - outflow + inflow
-    lhs = ref.sum(axis=(0, 1, 2, 3))
-    rhs = f19.sum(axis=(0, 1, 2, 3)) - absorbed.sum(axis=(0, 1, 2)) - outflow + (slots @ op.bnd)[:, None]
+    wq = power_weights(lattice)
+    slots = op.inflow_mask.sum(axis=(0, 1, 2)) * wq  # inflow slots per direction, as power
+    src = _source_power(pb)
+    np.testing.assert_allclose(inflow.T, (slots @ op.bnd)[:, None] * np.ones(3) + src, rtol=tol * 10)
+    # power budget of the step (zero weighted column sums of the collision at sigma_a = 0):
+    # power(next) = power(f) - absorbed - outflow + inflow (boundary and source)
+    lhs = np.einsum("xyzikc,i->kc", ref[..., 1:, :, :], wq)
+    rhs = np.einsum("xyzikc,i->kc", f19[..., 1:, :, :], wq) - absorbed.sum(axis=(0, 1, 2)) - outflow + (slots @ op.bnd)[:, None] + src
     np.testing.assert_allclose(lhs, rhs, rtol=1e-12)
 
 
+@pytest.mark.parametrize("lattice", LATTICES)
 @pytest.mark.parametrize("dtype, tol", [("float32", 1e-6), ("float64", 1e-13)])
 @pytest.mark.parametrize("mode", [0, 1, 2])
 @pytest.mark.parametrize("shape, blocks", [((4, 3, 700), (1, 3)), ((4, 7, 300), (4, 2))], ids=["rows", "4-row-blocks"])
-def test_fused_path_matches_reference_in_every_mode(rng, dtype, tol, mode, shape, blocks):
+def test_fused_path_matches_reference_in_every_mode(rng, dtype, tol, mode, shape, blocks, lattice):
     """Both kernels (collision products added while streaming, geist2008 eq. (2)) in all three modes,
     with rows of green nodes only, brown nodes only (the second material alone) and both, an occupied
     run shorter than the row or block (pass-through head and tail) and an empty row: ``_sweep_rows``
     on long rows and ``_sweep_blocks`` on blocks of four short rows, the last partial (the z-shifts
-    that wrap into a neighbouring row's inflow slot are undone, also in the sums)."""
+    that wrap into a neighbouring row's inflow slot are undone, also in the sums). On the ordinates
+    lattice a beam's first-collision source is added in modes 0 and 1 and left out of mode 2 (I - T)."""
     nz = shape[2]
     head, tail = nz // 8, nz - nz // 8
     rho = rng.uniform(0.05, 0.9, shape)
@@ -261,8 +361,7 @@ def test_fused_path_matches_reference_in_every_mode(rng, dtype, tol, mode, shape
     brown_mask[0] = True  # brown-only rows
     brown_mask[1] = False  # green-only rows
     med = Medium(sigma_a=(0.1, 0.3, 0.02), sigma_s=(0.85, 0.6, 0.97), g=(0.4, -0.7, 0.0))
-    bounds = (sun_boundary((0.2, -0.5, 0.8)), base_boundary(9), ambient_boundary())
-    pb = LBProblem(rho, med, bounds, brown_mask=brown_mask)
+    pb = LBProblem(rho, med, _bounds(lattice), brown_mask=brown_mask, lattice=lattice)
     occ = rho > 0
     z = np.arange(shape[2])
     runs = np.where(occ.any(-1), np.where(occ, z, -1).max(-1) - np.where(occ, z, shape[2]).min(-1) + 1, 0) * 3
@@ -276,7 +375,7 @@ def test_fused_path_matches_reference_in_every_mode(rng, dtype, tol, mode, shape
     f = op.to_row(f19)
     op.set_inflow(f, zero=mode == 2)  # a solver state, or a Krylov vector (no boundary part)
     f19 = op.from_row(f).astype(np.float64)  # the exact input the kernel sees
-    ref, _, _ = _reference_step(f19, pb)
+    ref, _, _ = _reference_step(f19, _without_sources(pb) if mode == 2 else pb)
     tf = op.to_row(ref).astype(np.float64)
     op.set_inflow(tf, zero=mode == 2)
     out = op.zeros()
@@ -322,15 +421,22 @@ def test_kernel_on_thin_and_degenerate_grids(rng, shape):
     assert not padding.any()
 
 
-def test_operator_mode_applies_identity_minus_sweep(rng):
-    pb = _problem_random(rng)
+def _without_sources(pb):
+    """The same problem with every beam replaced by an empty boundary: the linear part T of the sweep."""
+    return dataclasses.replace(pb, boundaries=tuple(Boundary(b.name, b.inflow) for b in pb.boundaries))
+
+
+@pytest.mark.parametrize("lattice", LATTICES)
+def test_operator_mode_applies_identity_minus_sweep(rng, lattice):
+    # (I - T) of BiCGSTAB is linear: a beam's first-collision source belongs to the right-hand side, not to T
+    pb = _problem_random(rng, lattice=lattice)
     op = _Operator(pb, "float64")
     v = op.to_row(rng.uniform(0, 1, pb.shape + (19, 3, 3)))
     op.set_inflow(v, zero=True)  # Krylov vectors have no boundary part
     w = op.to_row(rng.uniform(0, 1, pb.shape + (19, 3, 3)))
     out = op.zeros()
     wd, dd = op.apply(v, out, w)
-    ref, _, _ = _reference_step(op.from_row(v), pb)
+    ref, _, _ = _reference_step(op.from_row(v), _without_sources(pb))
     tv = op.to_row(ref)
     op.set_inflow(tv, zero=True)  # T v: the reference put the boundary densities there
     expect = v - tv
@@ -369,15 +475,21 @@ def test_forward_delta_scattering_without_absorption_is_a_pass_through():
     np.testing.assert_array_equal(dense.f, empty.f)
 
 
-@pytest.mark.parametrize("k", [1, 7])
-def test_beer_lambert_through_an_absorbing_slab(k):
+@pytest.mark.parametrize(
+    "k, lattice, step",
+    # (1, 1, 0) is a step of sqrt2 dx. The ordinates lattice attenuates it as such; geist2008 (one rho for
+    # every step) as if it were dx, the defect of issue #15 (this test used to assert it for the default)
+    [(1, "ordinates", 1.0), (7, "ordinates", math.sqrt(2)), (1, "geist2008", 1.0), (7, "geist2008", 1.0)],
+)
+def test_beer_lambert_through_an_absorbing_slab(k, lattice, step):
     # slab of leaves at x in [3, 9), sigma_s = 0, sigma_t = sigma_a = 1: per dense node the beam keeps
-    # 1 - rho = exp(-G LAD dx) (density_from_lad), so after n nodes exp(-G LAD n dx) exactly
+    # 1 - rho_k = exp(-G LAD |c_k| dx) (density_from_lad, collision.step_density), so after n nodes
+    # exp(-G LAD n |c_k| dx) exactly
     shape = (12, 12, 2)
     lad, dx = 4.0, 0.1
     rho = np.zeros(shape)
     rho[3:9] = density_from_lad(np.full((6,) + shape[1:], lad), dx)
-    pb = LBProblem(rho, Medium(sigma_a=(1.0,), sigma_s=(0.0,), g=(0.0,)), (base_boundary(k),))
+    pb = LBProblem(rho, Medium(sigma_a=(1.0,), sigma_s=(0.0,), g=(0.0,)), (base_boundary(k),), lattice=lattice)
     r = solve(pb, LBParams(dtype="float64", tolerance=1e-12, keep_f=True))
     f = r.f[..., k, 0, 0]
     cx, cy, _ = DIRECTIONS[k]
@@ -385,7 +497,7 @@ def test_beer_lambert_through_an_absorbing_slab(k):
         for y in range(shape[1]):
             # dense nodes crossed before arriving at (x, y): upstream nodes (x - m cx, y - m cy), m >= 1, inside the grid
             n = sum(1 for m in range(1, 13) if 0 <= y - m * cy < shape[1] and 0 <= x - m * cx < shape[0] and 3 <= x - m * cx < 9)
-            assert f[x, y, 0] == pytest.approx(math.exp(-LEAF_ANGLE_G * lad * dx * n), rel=1e-13, abs=0)
+            assert f[x, y, 0] == pytest.approx(math.exp(-LEAF_ANGLE_G * lad * dx * step * n), rel=1e-13, abs=0)
     # nothing is scattered into other directions
     others = np.delete(r.f[..., 0, 0], [0, k], axis=-1)
     assert np.abs(others).max() == 0.0
@@ -482,23 +594,29 @@ def test_leaf_irradiance_of_a_unit_sun_is_one_half():
     assert per_leaf.mean() == pytest.approx(0.5, abs=1e-4)  # quadrature error ~1/m
 
 
-def test_scattered_irradiance_single_scattering_closed_form():
+@pytest.mark.parametrize("lattice", ["ordinates", "geist2008"])
+def test_scattered_irradiance_single_scattering_closed_form(lattice):
     n, c = 9, 4
     rho = np.zeros((n, n, n))
     rho[c, c, c] = 0.5
     med = Medium(sigma_a=(0.2,), sigma_s=(0.6,), g=(0.4,))
-    pb = LBProblem(rho, med, (base_boundary(1),))  # unit beams along +x on every line
+    pb = LBProblem(rho, med, (base_boundary(1),), lattice=lattice)  # unit beams along +x on every line
     full = solve(pb, LBParams(dtype="float64", tolerance=1e-13))
     direct = solve(pb.unscattered(), LBParams(dtype="float64", tolerance=1e-13))
     e = scattered_leaf_irradiance(full.energy_density, direct.energy_density)[..., 0, 0]
-    q = hg_weights(0.4)
+    # the share of direction i: sigma_s P_i1 of the intercepted rho_1 (= rho, axial), handed to line i as
+    # irradiance |c_i| / |c_1| times its power on the ordinates lattice (geist2008: P = hg_weights, factor 1)
+    q = phase_weights(0.4, "hg", lattice)
+    size = np.sqrt((DIRECTIONS[1:] ** 2).sum(axis=1)) if lattice == "ordinates" else np.ones(18)
+    if lattice == "geist2008":
+        np.testing.assert_array_equal(q, hg_weights(0.4))
     expect = np.zeros_like(e)
     for i in range(1, 19):
         for step in range(1, n):
             p = np.array([c, c, c]) + step * DIRECTIONS[i]
             if (p < 0).any() or (p >= n).any():
                 break
-            expect[tuple(p)] += 0.5 * 0.5 * 0.6 * q[i - 1, 0]  # E = rho sigma_s q_i1 / 2
+            expect[tuple(p)] += 0.5 * 0.5 * 0.6 * q[i - 1, 0] * size[i - 1]  # E = rho sigma_s q_i1 |c_i| / 2
     np.testing.assert_allclose(e, expect, atol=1e-12)
     # the never-scattered beam behind the node keeps 1 - rho sigma_t
     assert direct.energy_density[c + 1, c, c, 0, 0] == pytest.approx(1 - 0.5 * 0.8, rel=1e-13)
@@ -637,3 +755,114 @@ def test_extrapolation_stays_finite_and_converges_from_a_zero_start():
     assert r.iterations < solve(pb, LBParams(tolerance=1e-6, solver="iterate", initial="zero")).iterations
     plain = solve(pb, LBParams(tolerance=1e-8, solver="iterate", initial="zero", dtype="float64"))
     np.testing.assert_allclose(r.energy_density, plain.energy_density, rtol=0, atol=2e-3 * plain.energy_density.max())
+
+
+# --------------------------------------------------------------------------- beams: the first-collision source
+
+
+@pytest.mark.parametrize("k", [6, 13, 1, 16])  # -z, (1, 0, -1), +x, (0, -1, -1)
+def test_beam_along_a_lattice_direction_is_the_kronecker_boundary(k):
+    """A unit beam along c_k as a first-collision source gives exactly the scattered light of the Kronecker
+    base B_k (boundary inflow along c_k). The march of ``lb.beam_fields`` attenuates along c_k as the
+    ordinates lattice does (arriving beam exp(-tau_up) = the lattice's unscattered f_k, cell loss
+    1 - exp(-ext |c_k|) = rho_k at sigma_t = 1), so the two formulations agree to round-off: this ties the
+    new source to the lattice's own transport, axial and diagonal, through green and brown nodes."""
+    rng = np.random.default_rng(k)
+    rho = rng.uniform(0.0, 0.6, (9, 8, 10))
+    rho[rng.random(rho.shape) < 0.3] = 0.0
+    mask = rng.random(rho.shape) < 0.2
+    med = Medium(sigma_a=(0.2, 0.05), sigma_s=(0.8, 0.95), g=(0.3, -0.5), phase="bilambertian")
+    params = LBParams(dtype="float64", tolerance=1e-12)
+    kron = LBProblem(rho, med, (base_boundary(k),), brown_mask=mask)
+    beam = LBProblem(rho, med, (Boundary("beam", (0.0,) * 18, beam=tuple(UNIT_DIRECTIONS[k])),), brown_mask=mask)
+    scat_k = solve(kron, params).energy_density - unscattered_energy(kron, "float64")
+    rb = solve(beam, params)
+    scat_b = rb.energy_density - unscattered_energy(beam, "float64")
+    assert scat_k.max() > 0.01
+    np.testing.assert_allclose(scat_b, scat_k, rtol=0, atol=1e-10 * scat_k.max())
+    # the beam's own (unscattered) light is the exact beam at the node centres, half a cell further
+    # down the line than the lattice's arriving f_k
+    un_k = unscattered_energy(kron, "float64")
+    ext = -np.log1p(-rho)
+    inside = (un_k[..., 0, 0] > 0) & (rho > 0)
+    L = math.sqrt((DIRECTIONS[k] ** 2).sum())
+    np.testing.assert_allclose(unscattered_energy(beam, "float64")[..., 0, 0][inside],
+                               (un_k[..., 0, 0] * np.exp(-0.5 * L * ext))[inside], rtol=1e-12)
+    _balanced(rb)
+
+
+def _balanced(r):
+    assert r.converged and np.isfinite(r.energy_density).all() and (r.energy_density >= 0).all()
+    np.testing.assert_allclose(r.inflow, r.outflow + r.absorbed, rtol=1e-6)
+
+
+@pytest.mark.parametrize("elevation", [30.0, 60.0, 90.0])
+def test_beam_direct_light_is_beer_lambert_and_its_source_is_what_it_loses(elevation):
+    """A uniform slab under a sun of any elevation: the unscattered beam at every node centre is
+    exp(-tau / mu0) with tau the optical depth of the centre below the slab top (exact march), and the
+    first-collision source put into the lattice (its inflow) is sigma_s / sigma_t times the power the beam
+    loses in the grid, exactly at the zenith (the chord through a cell's centre is then the cell's height)
+    and to second order in the optical depth per cell otherwise."""
+    e = math.radians(elevation)
+    sun = (math.cos(e), 0.0, math.sin(e))
+    mu0 = math.sin(e)
+    nx, H = 40, 6
+    kappa = 0.2
+    rho = np.zeros((nx, 3, H + 1))
+    rho[:, :, :H] = -math.expm1(-kappa)
+    med = Medium((0.3,), (0.7,), (0.0,))
+    pb = LBProblem(rho, med, (sun_source(sun),))
+    direct = unscattered_energy(pb, "float64")[..., 0, 0]
+    depth = (H - 0.5 - np.arange(H)) * kappa  # optical depth of the centres of the slab's layers
+    # columns whose ray to the sun leaves through the top (x from the downwind side of the sun)
+    x = nx - 1 - int(math.ceil(H / math.tan(e))) if elevation < 90 else nx - 1
+    np.testing.assert_allclose(direct[x, 1, :H], np.exp(-depth / mu0), rtol=1e-12)
+    assert np.all(direct[:, :, H] == 1.0)  # the empty top layer: the unobstructed sun
+    r = solve(pb, LBParams(dtype="float64", tolerance=1e-10))
+    _balanced(r)
+    if elevation == 90.0:  # every column loses 1 - exp(-tau) of a unit beam entering its top face
+        assert r.inflow[0, 0] == pytest.approx(0.7 * nx * 3 * -math.expm1(-H * kappa), rel=1e-12)
+
+
+def test_once_scattered_start_reaches_the_same_steady_state_in_fewer_sweeps():
+    """A beam's iteration starts from its once-scattered light (the first-collision source carried along
+    the lattice lines in one ordered pass), not from zero."""
+    rho = sphere(24, 0.4, 0.4)
+    med = Medium(sigma_a=(0.1, 0.02), sigma_s=(0.8, 0.95), g=(0.3, 0.0))
+    pb = LBProblem(rho, med, (sun_source((0.3, 0.2, 0.9)), base_boundary(5)))
+    runs = {init: solve(pb, LBParams(tolerance=1e-9, dtype="float64", initial=init, solver="iterate")) for init in ("zero", "unscattered")}
+    a, b = runs["zero"].energy_density, runs["unscattered"].energy_density
+    assert runs["zero"].converged and runs["unscattered"].converged
+    np.testing.assert_allclose(b, a, rtol=0, atol=1e-6 * a.max())
+    assert runs["unscattered"].iterations < runs["zero"].iterations
+    # BiCGSTAB solves the same affine problem (the source is its right-hand side, not part of I - T)
+    k = solve(pb, LBParams(tolerance=1e-9, dtype="float64", solver="bicgstab"))
+    np.testing.assert_allclose(k.energy_density, a, rtol=0, atol=1e-6 * a.max())
+
+
+def test_beam_inputs_are_checked():
+    with pytest.raises(ValueError, match="no boundary inflow"):
+        Boundary("b", (1.0,) + (0.0,) * 17, beam=(0.0, 0.0, -1.0))
+    with pytest.raises(ValueError, match="nonzero"):
+        Boundary("b", (0.0,) * 18, beam=(0.0, 0.0, 0.0))
+    assert Boundary("b", (0.0,) * 18, beam=(0.0, 0.0, -2.0)).beam == (0.0, 0.0, -1.0)
+    with pytest.raises(ValueError, match="ordinates"):
+        LBProblem(np.zeros((3, 3, 3)), leaf_medium(), (sun_source((0, 0, 1)),), lattice="geist2008")
+    with pytest.raises(ValueError, match="lattice"):
+        LBProblem(np.zeros((3, 3, 3)), leaf_medium(), (ambient_boundary(),), lattice="d3q27")
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)).filter(lambda v: np.linalg.norm(v) > 0.1))
+def test_sun_boundary_splits(sun):
+    """geist2008's split sums to 1 (scalar irradiance 1) with a short net flux; the flux split carries the
+    sun's flux vector exactly (sum_i b_i n_i = d) with a scalar irradiance of 1 / |hit point| >= 1."""
+    d = -np.asarray(sun) / np.linalg.norm(sun)
+    g = np.array(sun_boundary(sun).inflow)
+    assert g.sum() == pytest.approx(1.0) and np.linalg.norm(g @ UNIT_DIRECTIONS[1:]) < 1.0 + 1e-12
+    f = np.array(sun_boundary(sun, "flux").inflow)
+    assert (f >= 0).all() and np.count_nonzero(f) <= 3
+    np.testing.assert_allclose(f @ UNIT_DIRECTIONS[1:], d, atol=1e-12)
+    assert 1.0 - 1e-12 <= f.sum() <= 1.23
+    with pytest.raises(ValueError, match="split"):
+        sun_boundary(sun, "nearest")
