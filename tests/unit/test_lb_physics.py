@@ -101,6 +101,7 @@ def _slab_fluxes(H, rho, sigma_a, g, k, lattice="geist2008"):
     return (f[0, CZ < 0] * wq[CZ < 0]).sum() / wq[k - 1], (f[-1, CZ > 0] * wq[CZ > 0]).sum() / wq[k - 1]
 
 
+@pytest.mark.slow  # 40-53 s each on 2 cores with a cold numba cache (a new CI venv); tests/unit/test_lb_slab.py covers the column in seconds
 @pytest.mark.parametrize("lattice", ["geist2008", "ordinates"])
 def test_periodic_column_is_the_wide_grid_limit_of_the_solver(lattice):
     H, rho, sa = 5, 0.3, 0.1
