@@ -78,6 +78,18 @@ def _as_rays(origins, directions) -> tuple[np.ndarray, np.ndarray]:
     return o, d
 
 
+def _for_spans(n: int, chunk: int, workers: int, fn) -> None:
+    """Call ``fn(a, b)`` for consecutive spans of ``chunk`` rays out of ``n``, on ``workers`` threads
+    (Embree releases the GIL; each span writes its own slice, so the results do not depend on the threads)."""
+    spans = [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
+    if workers == 1 or len(spans) == 1:
+        for a, b in spans:
+            fn(a, b)
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            list(pool.map(lambda span: fn(*span), spans))
+
+
 class RayScene:
     """First-hit ray queries against a fixed set of triangles (Embree BVH).
 
@@ -191,18 +203,7 @@ class RayScene:
         t = np.full(n, np.inf)
         if n == 0 or self._scene is None:
             return tri_id, t
-        spans = [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
-
-        def run(span):
-            a, b = span
-            self._run(o[a:b], d[a:b], far[a:b], tri_id[a:b], t[a:b], refine)
-
-        if workers == 1 or len(spans) == 1:
-            for span in spans:
-                run(span)
-        else:
-            with ThreadPoolExecutor(max_workers=workers) as pool:
-                list(pool.map(run, spans))
+        _for_spans(n, chunk, workers, lambda a, b: self._run(o[a:b], d[a:b], far[a:b], tri_id[a:b], t[a:b], refine))
         return tri_id, t
 
     def occluded(self, origins, directions, *, workers: int = 1, chunk: int = DEFAULT_CHUNK) -> np.ndarray:
@@ -228,10 +229,8 @@ class RayScene:
             return out
         if chunk < 1 or workers < 1:
             raise ValueError(f"chunk and workers must be >= 1, got {chunk} and {workers}")
-        spans = [(a, min(a + chunk, n)) for a in range(0, n, chunk)]
 
-        def run(span):
-            a, b = span
+        def run(a: int, b: int) -> None:
             res = self._scene.run(
                 np.ascontiguousarray(o[a:b], dtype=np.float32),
                 np.ascontiguousarray(d[a:b], dtype=np.float32),
@@ -239,12 +238,7 @@ class RayScene:
             )
             out[a:b] = np.asarray(res) >= 0
 
-        if workers == 1 or len(spans) == 1:
-            for span in spans:
-                run(span)
-        else:
-            with ThreadPoolExecutor(max_workers=workers) as pool:
-                list(pool.map(run, spans))
+        _for_spans(n, chunk, workers, run)
         return out
 
     def _run(self, o, d, far, tri_out, t_out, refine) -> None:
