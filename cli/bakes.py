@@ -10,7 +10,8 @@ from rich.table import Table
 
 from foliage_tools.cli import console
 from foliage_tools.cli.common import (
-    OUT, SCENE, parse_direct_samples, bake_options, common_options, direct_choice, direct_options, execute, leaf_optics_from_flags, run,
+    OUT, SCENE, parse_direct_samples, bake_options, common_options, direct_choice, direct_options, execute, gather_option,
+    leaf_optics_from_flags, run,
     setup_logging,
 )
 
@@ -230,11 +231,12 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, nois
 @click.option("--max-sweeps", type=click.IntRange(min=1), default=20000, show_default=True,
               help="Stop after this many lattice sweeps. Short of --tolerance the layer is still written, and the "
                    "command exits 1 (a bake that failed its accuracy check).")
+@gather_option("LB's scattered light", "primvars:foliage:lb:scattered and lbIndirect (then per leaf)")
 @direct_options
 @bake_options
 @common_options
 def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, solver: str, absorption_scale: float, max_sweeps: int,
-       direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+       gather: int, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
        as_json: bool, quiet: bool, verbose: int) -> None:
     """Lattice-Boltzmann light bake (geist2008, steele2010) per unique prototype.
 
@@ -251,6 +253,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
     Example:
       foliage lb examples/tree_small.usda -o out/tree.lb.usda --resolution 64
       foliage lb examples/tree_small.usda -o out/tree.lb.usda --bases all   # relightable
+      foliage lb examples/tree_small.usda -o out/tree.lb.usda --gather 1024 # closest to the reference
     """
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.lb import LBBakeParams, run_lb
@@ -261,7 +264,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, bases=bases, tolerance=tolerance, solver=solver, absorption_scale=absorption_scale,
-            max_sweeps=max_sweeps, direct=direct_choice(direct_mode, direct_samples),
+            max_sweeps=max_sweeps, direct=direct_choice(direct_mode, direct_samples), gather=gather,
         )
 
         def render(report) -> None:
@@ -357,11 +360,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "term) and grid above.")
 @click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True,
               help="With --depth rays: origins per leaf, uniform over its area (seeded); more rays, less count noise (1/sqrt).")
-@click.option("--gather", type=click.IntRange(min=0), default=0, show_default=True, metavar="N",
-              help="Final gather: N rays per leaf (a multiple of 4) over both hemispheres through the actual leaves; the "
-                   "light they see is scattered once, exactly (a shadow ray at the hit point), plus SPPG's scattered light "
-                   "at the hit leaf for the later bounces. Replaces primvars:foliage:sppg:scattered (spp with --no-gfactor). "
-                   "1024 rays: ~7 % sampling error per leaf; 0: off.")
+@gather_option("SPPG's scattered light", "primvars:foliage:sppg:scattered (spp with --no-gfactor)")
 @direct_options
 @bake_options
 @common_options

@@ -161,6 +161,16 @@ def direct_options(fn: Callable) -> Callable:
     return fn
 
 
+def gather_option(later_bounces: str, replaces: str) -> Callable:
+    """``--gather N`` (lb and spp): a final gather over the actual leaves on top of the volume method."""
+    return click.option(
+        "--gather", type=click.IntRange(min=0), default=0, show_default=True, metavar="N",
+        help="Final gather: N rays per leaf (a multiple of 4) over both hemispheres through the actual leaves; the "
+             f"light they see is scattered once, exactly (a shadow ray at the hit point), plus {later_bounces} at the "
+             f"hit leaf for the later bounces. Replaces {replaces}. 1024 rays: ~7 % sampling error per leaf; 0: off.",
+    )
+
+
 def parse_direct_samples(ctx: click.Context, param: click.Parameter, value) -> int | None:
     if value is None or str(value).strip().lower() == "auto":
         return None

@@ -45,7 +45,8 @@ from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path, volume_path
 from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
-from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
+from foliage_tools.pipeline.gather import bake_gather, check_gather
+from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
 from foliage_tools.scene.model import Prototype, Scene
@@ -89,6 +90,10 @@ class LBBakeParams:
     """``sun_source="boundary"``: how the sun is split over lattice directions (``lb.sun_boundary``)."""
     phase: str = "bilambertian"
     """Discrete phase function (``collision.PHASES``): the leaves' ``bilambertian`` or geist2008's ``hg``."""
+    gather: int = 0
+    """``--gather N``: rays per leaf of a final gather over the actual leaves (pipeline.gather): the first bounce
+    exact, the later ones from LB's E_scattered at the hit leaf. Its result replaces ``:scattered`` and
+    ``lbIndirect`` (then per leaf, not interpolated in the lattice); the grids stay the lattice's. 0: off."""
 
     def __post_init__(self) -> None:
         if self.lattice not in LATTICES:
@@ -114,6 +119,7 @@ class LBBakeParams:
             raise UsageError(f"--absorption-scale must be in (0, 1], got {self.absorption_scale}.")
         if self.max_sweeps < 1:
             raise UsageError(f"--max-sweeps must be at least 1, got {self.max_sweeps}.")
+        check_gather(self.gather)
 
 
 def sample_trilinear(field: np.ndarray, grid: GridSpec, points: np.ndarray) -> np.ndarray:
@@ -247,9 +253,13 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
     protos = []
     bakes = bake_lb(scene, sun, params, report.warnings, progress)
     exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
+    gathered = None
+    if params.gather:
+        gathered = bake_gather(scene, sun, params.optics, {b.index: b.e_scattered for b in bakes}, params.gather, progress)
     for bake in bakes:
         proto = scene.prototypes[bake.index]
         e_direct = exact.per_prototype[bake.index] if exact else bake.e_direct
+        e_scattered = gathered.per_prototype[bake.index] if gathered else bake.e_scattered
         g = bake.grid
         meta = {"units": "photon energy density (sun irradiance 1 = 1)", "metersPerUnit": float(scene.meters_per_unit)}
         if params.bases == "sun":
@@ -278,9 +288,12 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         edits.volumes.append(VolumeEdit(path=vol, vdb_file=vdb_path(out, scene, bake.index), grids=tuple(grids), attributes=attrs))
         if not proto.editable:
             report.warnings.append(native_instance_warning(proto, "LB primvars"))
-        edits.primvars += _vertex_indirect(proto, bake)
+        if gathered:
+            edits.primvars += vertex_primvar_edits(proto, "foliage:lbIndirect", e_scattered, type="color3f")
+        else:
+            edits.primvars += _vertex_indirect(proto, bake)
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:direct", e_direct, type="color3f")
-        edits.primvars += leaf_primvar_edits(proto, "foliage:lb:scattered", bake.e_scattered, type="color3f")
+        edits.primvars += leaf_primvar_edits(proto, "foliage:lb:scattered", e_scattered, type="color3f")
         edits.attributes += baked_sun_attribute(scene, bake.index, "lb", sun.direction)
         if not r.converged:  # DESIGN.md section 3: a bake that failed its own accuracy check exits 1
             report.findings.append(
@@ -292,7 +305,8 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
             "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source,
-            "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": bake.e_scattered.mean(axis=0).tolist(),
+            "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": e_scattered.mean(axis=0).tolist(),
+            "e_scattered_lattice_mean": bake.e_scattered.mean(axis=0).tolist(),
             "e_direct_volume_mean": bake.e_direct.mean(axis=0).tolist(),
         })
     progress.step(f"writing {out}")
@@ -304,5 +318,6 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "absorption_scale": params.absorption_scale, "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
+        "gather": gathered.stats() if gathered is not None else None,
     }
     return report.finish()

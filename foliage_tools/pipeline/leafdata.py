@@ -36,6 +36,27 @@ def leaf_primvar_edits(proto: Prototype, name: str, per_leaf: np.ndarray, *, typ
     return edits
 
 
+def vertex_primvar_edits(proto: Prototype, name: str, per_leaf: np.ndarray, *, type: str) -> list[PrimvarEdit]:
+    """One vertex primvar per leaf mesh of an editable prototype: each vertex takes the value of its leaf.
+
+    Vertices of degenerate faces (no leaf) get zeros.
+    """
+    if not proto.editable:
+        return []
+    edits = []
+    for i, mesh in enumerate(proto.meshes):
+        if not mesh.is_leaf:
+            continue
+        tri_leaf = proto.leaves.face_leaf_ids[i][mesh.face_of_triangle]
+        vertex_leaf = np.full(mesh.points.shape[0], -1, dtype=np.int64)
+        vertex_leaf[mesh.triangles.reshape(-1)] = np.repeat(tri_leaf, 3)
+        values = np.zeros((mesh.points.shape[0],) + np.shape(per_leaf)[1:])
+        ok = vertex_leaf >= 0
+        values[ok] = np.asarray(per_leaf)[vertex_leaf[ok]]
+        edits.append(PrimvarEdit(prim=mesh.path, name=name, values=values, type=type, interpolation="vertex"))
+    return edits
+
+
 def native_instance_warning(proto: Prototype, what: str) -> str:
     return (
         f"prototype <{proto.path}> is a native instance: {what} cannot be authored on its meshes "

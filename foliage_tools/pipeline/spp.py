@@ -58,12 +58,12 @@ from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, density_for_bake, vdb_path, volume_path
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.gather import bake_gather, check_gather
-from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
+from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.vdb import Grid
-from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, stage_metadata, write_layer
+from foliage_tools.scene.write import LayerEdits, VolumeEdit, stage_metadata, write_layer
 
 #: Embree threads of the ray path (results are identical for any number).
 _WORKERS = os.cpu_count() or 1
@@ -339,22 +339,6 @@ def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], pro
     return out
 
 
-def _vertex_values(proto: Prototype, per_leaf: np.ndarray, type_: str, name: str) -> list[PrimvarEdit]:
-    """Per-leaf values spread to the vertices of each leaf mesh (a vertex takes the value of its leaf)."""
-    edits = []
-    for i, mesh in enumerate(proto.meshes):
-        if not mesh.is_leaf or not proto.editable:
-            continue
-        tri_leaf = proto.leaves.face_leaf_ids[i][mesh.face_of_triangle]
-        vertex_leaf = np.full(mesh.points.shape[0], -1, dtype=np.int64)
-        vertex_leaf[mesh.triangles.reshape(-1)] = np.repeat(tri_leaf, 3)
-        values = np.zeros((mesh.points.shape[0],) + per_leaf.shape[1:])
-        ok = vertex_leaf >= 0
-        values[ok] = per_leaf[vertex_leaf[ok]]
-        edits.append(PrimvarEdit(prim=mesh.path, name=name, values=values, type=type_, interpolation="vertex"))
-    return edits
-
-
 def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | None = None) -> Report:
     progress = progress or Silent()
     report, scene, sun = begin_bake("spp", path, out, params.sun, progress)
@@ -397,8 +381,8 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
             edits.primvars += leaf_primvar_edits(proto, f"foliage:{m}:scattered", scattered[m], type="color3f")
         best = getattr(res, best_name)
         best_direct = best.direct if e_direct is None else e_direct
-        edits.primvars += _vertex_values(proto, best_direct + scattered[best_name], "color3f", "foliage:sppIrradiance")
-        edits.primvars += _vertex_values(proto, res.gfactor, "float", "foliage:gFactor")
+        edits.primvars += vertex_primvar_edits(proto, "foliage:sppIrradiance", best_direct + scattered[best_name], type="color3f")
+        edits.primvars += vertex_primvar_edits(proto, "foliage:gFactor", res.gfactor, type="float")
         edits.attributes += baked_sun_attribute(scene, bake.index, "spp", sun.direction)
         protos.append({
             "path": proto.path, "leaves": proto.leaves.count, "cells": int(bake.grid_depth.size), "resolution": list(bake.grid_depth.shape),
