@@ -556,6 +556,12 @@ class LBResult:
     beam_direct: np.ndarray | None = field(default=None, repr=False)
     """(nx, ny, nz, K, C) float64: the exact unscattered beam at the node centres for beam right-hand sides (0 for
     the others; ``beam_fields(problem).direct``), or None without beams: what ``unscattered_energy`` gives for them."""
+    beam_power: np.ndarray | None = field(default=None, repr=False)
+    """(nx, ny, nz, K, C) float64: the power each cell takes out of a beam (``BeamFields.power``), or None."""
+    once_scattered: np.ndarray | None = field(default=None, repr=False)
+    """(nx, ny, nz, K, C): the lattice's first-order scattered field of the beams (their first-collision source
+    carried along the lattice lines with attenuation only), part of ``energy_density``; None without beams.
+    ``lighting.single_scatter`` replaces it by the exact one."""
 
 
 # --------------------------------------------------------------------------- numba kernels
@@ -1735,6 +1741,9 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
     tol = params.tolerance
     history: list[float] = []
     f = op.unscattered(problem) if params.initial == "unscattered" else op.initial()
+    once = None
+    if op.beams is not None:  # the lattice's once-scattered light: the unscattered start for a beam
+        once = op.energy(f if params.initial == "unscattered" else op.unscattered(problem))
     sweeps = 0
     used: list[str] = []
     t_loop = time.perf_counter()
@@ -1800,6 +1809,8 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
         absorbed=absorbed.T.copy(),
         history=tuple(history),
         beam_direct=None if op.beams is None else op.beams.direct,
+        beam_power=None if op.beams is None else op.beams.power,
+        once_scattered=once,
     )
 
 

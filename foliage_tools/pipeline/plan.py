@@ -18,7 +18,7 @@ import numpy as np
 
 from foliage_tools.errors import UsageError
 from foliage_tools.lighting.envelope import AUTO_FAST_THRESHOLD
-from foliage_tools.lighting.lb import memory_bytes
+from foliage_tools.lighting.lb import PLAIN_ITERATION_FIELDS, memory_bytes
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import density_grid
 from foliage_tools.pipeline.direct import auto_samples
@@ -100,7 +100,8 @@ def plan(path: Path, params: PlanParams) -> Report:
         rhs = 3 * (18 if params.bases == "all" else 1)
         sweeps = LB_SWEEPS_PER_EDGE * max(grid.shape)
         lb_s = sweeps * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW)
-        lb_bytes = memory_bytes(grid.shape, rhs)
+        # the sun bake's first-collision beam arrays and single-scattering correction (pipeline.lb.bake_prototype)
+        lb_bytes = memory_bytes(grid.shape, rhs, PLAIN_ITERATION_FIELDS + (0.9 if params.bases == "sun" else 0.0))
         fast = n >= AUTO_FAST_THRESHOLD
         smax_s = n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S
         instances = len(scene.instances_of(i))

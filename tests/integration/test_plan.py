@@ -1,6 +1,8 @@
 """``foliage plan``: grids and memory that match what the bakes build, and nothing written."""
 
 import json
+
+import pytest
 from pathlib import Path
 
 from tests.integration.test_cli_errors import foliage
@@ -28,5 +30,7 @@ def test_plan_lb_memory_follows_the_right_hand_sides():
     assert (p_sun["lb_rhs"], p_all["lb_rhs"]) == (3, 54)  # RGB x (sun | 18 Kronecker bases)
     nodes = p_sun["grid"][0] * p_sun["grid"][1] * p_sun["grid"][2]
     assert p_sun["lb_memory_bytes"] >= 2 * 72 * 3 * nodes  # two fields of 18 float32 per rhs at least
-    assert p_all["lb_memory_bytes"] == 18 * p_sun["lb_memory_bytes"]
+    # 18x the right-hand sides; the sun bake alone holds its beam arrays and the single-scattering
+    # correction on top of the 2.3 fields of plain iteration (0.9 field more)
+    assert p_all["lb_memory_bytes"] == pytest.approx(18 * p_sun["lb_memory_bytes"] * 2.3 / 3.2, rel=1e-9)
     assert all_["seconds_estimate"]["lb"] > 5 * sun["seconds_estimate"]["lb"]  # 18x the work, a faster kernel per rhs
