@@ -87,6 +87,26 @@ def plan_forest(*, trees: int, grove: int, tree_radius: float, seed: int) -> For
     return ForestLayout(lift(tree_xy), tree_angles, tree_scales, lift(grove_xy), grove_angles, grove_scales)
 
 
+def plan_stand(*, side: int, tree_radius: float, seed: int) -> ForestLayout:
+    """A ``side`` x ``side`` stand for the PointInstancer: trunks on a square grid one crown diameter apart
+    (``2 * tree_radius``, so neighbouring crowns touch), random rotations about +Z, scale 1, no native trees.
+
+    Instance ``i`` sits in row ``i // side``, column ``i % side``; the centre one (odd ``side``) is
+    ``side * side // 2``.
+    """
+    if side < 1:
+        raise ValueError(f"the stand needs at least 1 x 1 trees, got {side}")
+    if not (math.isfinite(tree_radius) and tree_radius > 0):
+        raise ValueError(f"tree_radius must be > 0, got {tree_radius}")
+    rng = np.random.default_rng(seed)
+    n = side * side
+    cells = np.array([(i % side, i // side) for i in range(n)], dtype=np.float64)
+    xy = (cells - (side - 1) / 2.0) * 2.0 * tree_radius
+    empty = np.zeros((0, 3))
+    return ForestLayout(empty, np.zeros(0), np.zeros(0), np.concatenate([xy, np.zeros((n, 1))], axis=1),
+                        rng.uniform(0.0, 360.0, n), np.ones(n))
+
+
 def tree_radius_of(tree_path: str | os.PathLike) -> float:
     """Horizontal reach of the tree file's default prim from its trunk axis (the origin), metres.
 
@@ -166,6 +186,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--tree", type=Path, default=HERE / "tree_small.usda", help="tree file to reference (default: tree_small.usda beside this script)")
     ap.add_argument("--trees", type=int, default=4, help="native instanceable trees under /World/Trees (default 4)")
     ap.add_argument("--grove", type=int, default=12, help="PointInstancer instances in /World/Grove (default 12)")
+    ap.add_argument("--stand", type=int, default=0, metavar="N",
+                    help="instead of --trees and --grove: an N x N PointInstancer stand, trunks one crown diameter "
+                         "apart so the crowns touch, random rotations (default 0: off)")
     ap.add_argument("--seed", type=int, default=7, help="random seed; the same arguments give a byte-identical file (default 7)")
     ap.add_argument("--no-lights", action="store_true", help="leave out /Lights/Sun and /Lights/Sky")
     ap.add_argument("--format", choices=make_tree.FORMATS, default=None, help="file format; only needed for a .usd name (default: from the extension)")
@@ -176,8 +199,8 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     ap = parser()
     args = ap.parse_args(argv)
-    if args.trees < 0 or args.grove < 0 or args.seed < 0:
-        ap.error("--trees, --grove and --seed must be >= 0")
+    if args.trees < 0 or args.grove < 0 or args.seed < 0 or args.stand < 0:
+        ap.error("--trees, --grove, --stand and --seed must be >= 0")
     if not args.tree.is_file():
         ap.error(f"tree file {args.tree} does not exist; write it first with examples/make_tree.py")
     try:
@@ -185,11 +208,15 @@ def main(argv: list[str] | None = None) -> int:
         radius = tree_radius_of(args.tree)
     except ValueError as exc:
         ap.error(str(exc))
-    layout = plan_forest(trees=args.trees, grove=args.grove, tree_radius=radius, seed=args.seed)
-    params = {"tree": relative_asset_path(args.tree, args.out), "trees": args.trees, "grove": args.grove, "seed": args.seed}
+    if args.stand:
+        layout = plan_stand(side=args.stand, tree_radius=radius, seed=args.seed)
+        params = {"tree": relative_asset_path(args.tree, args.out), "stand": args.stand, "seed": args.seed}
+    else:
+        layout = plan_forest(trees=args.trees, grove=args.grove, tree_radius=radius, seed=args.seed)
+        params = {"tree": relative_asset_path(args.tree, args.out), "trees": args.trees, "grove": args.grove, "seed": args.seed}
     path = write_forest(args.out, args.tree, layout, with_lights=not args.no_lights, file_format=args.format, parameters=params)
-    print(f"wrote {path}: {args.trees} instanceable trees + a PointInstancer of {args.grove}, referencing "
-          f"@{relative_asset_path(args.tree, path)}@, {path.stat().st_size / 1e3:.1f} kB")
+    print(f"wrote {path}: {len(layout.tree_positions)} instanceable trees + a PointInstancer of {len(layout.grove_positions)}, "
+          f"referencing @{relative_asset_path(args.tree, path)}@, {path.stat().st_size / 1e3:.1f} kB")
     return 0
 
 

@@ -29,6 +29,7 @@ def check_gather(rays: int) -> None:
 
 @dataclass(frozen=True)
 class GatherBake:
+    world: World
     result: gather.GatherResult
     rays_per_leaf: int
     per_prototype: list[np.ndarray]
@@ -55,4 +56,4 @@ def bake_gather(scene: Scene, sun: Sun, optics: LeafOptics, rest: dict[int, np.n
     res = gather.solve(gather.GatherInputs(world.triangles, world.leaf_of_triangle, n, optics, sun.direction, rest=per_leaf),
                        gather.GatherParams(rays_per_leaf=rays, seed=seed))
     counts = [p.leaves.count for p in scene.prototypes]
-    return GatherBake(res, rays, prototype_means(world, res.e_scattered, len(counts), counts))
+    return GatherBake(world, res, rays, prototype_means(world, res.e_scattered, len(counts), counts))

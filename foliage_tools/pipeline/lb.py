@@ -50,6 +50,8 @@ from foliage_tools.pipeline.density import DensityResult, compute_density, densi
 from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.gather import bake_gather, check_gather
+from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
+from foliage_tools.pipeline.world import assemble
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
@@ -275,7 +277,8 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
     exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
     gathered = None
     if params.gather:
-        gathered = bake_gather(scene, sun, params.optics, {b.index: b.e_scattered for b in bakes}, params.gather, progress)
+        gathered = bake_gather(scene, sun, params.optics, {b.index: b.e_scattered for b in bakes}, params.gather, progress,
+                               world=exact.world if exact else None)
     for bake in bakes:
         proto = scene.prototypes[bake.index]
         e_direct = exact.per_prototype[bake.index] if exact else bake.e_direct
@@ -329,6 +332,12 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "e_scattered_lattice_mean": bake.e_scattered.mean(axis=0).tolist(),
             "e_direct_volume_mean": bake.e_direct.mean(axis=0).tolist(),
         })
+    world = exact.world if exact else (gathered.world if gathered else assemble(scene))
+    direct_all = exact.result.e_direct if exact else from_prototypes(world, {b.index: b.e_direct for b in bakes})
+    scattered_all = gathered.result.e_scattered if gathered else from_prototypes(world, {b.index: b.e_scattered for b in bakes})
+    pv, at = bake_instance_edits(scene, "lb", world, direct_all, scattered_all)
+    edits.primvars += pv
+    edits.attributes += at
     progress.step(f"writing {out}")
     report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
     first = protos[0]

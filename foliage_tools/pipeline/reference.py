@@ -21,6 +21,7 @@ from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
+from foliage_tools.pipeline.instances import bake_instance_edits
 from foliage_tools.pipeline.world import World, assemble, prototype_means
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
@@ -149,6 +150,9 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
             f"{params.noise:g}; raise --paths (the noise falls as 1/sqrt(paths): about "
             f"{int(math.ceil(res.paths * (res.noise_rel / params.noise) ** 2 / 1e6)):,}M would do)."
         )
+    pv, at = bake_instance_edits(scene, "ref", bake.world, res.e_direct, res.e_scattered)  # where each instance stands
+    edits.primvars += pv
+    edits.attributes += at
     progress.step(f"writing {out}")
     report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
     report.stats = {

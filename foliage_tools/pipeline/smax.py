@@ -16,6 +16,8 @@ from foliage_tools import __version__
 from foliage_tools.geometry.sun import Sun, to_prototype_space
 from foliage_tools.lighting import boulanger, envelope
 from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
+from foliage_tools.pipeline.world import assemble
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
@@ -136,6 +138,13 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
                 "seconds": float(env.seconds + light.seconds),
             }
         )
+    world = exact.world if exact else assemble(scene)
+    pv, at = bake_instance_edits(
+        scene, "smax", world,
+        exact.result.e_direct if exact else from_prototypes(world, {b.index: b.lighting.e_direct for b in bakes}),
+        from_prototypes(world, {b.index: b.lighting.e_scattered for b in bakes}))
+    edits.primvars += pv
+    edits.attributes += at
     progress.step(f"writing {out}")
     report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
     report.stats = {

@@ -58,6 +58,8 @@ from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, density_for_bake, vdb_path, volume_path
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.gather import bake_gather, check_gather
+from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
+from foliage_tools.pipeline.world import assemble
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
@@ -351,7 +353,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
     gathered = None
     if params.gather:
         gathered = bake_gather(scene, sun, params.optics, {b.index: getattr(b.result, best_name).scattered for b in bakes},
-                               params.gather, progress)
+                               params.gather, progress, world=exact.world if exact else None)
     for bake in bakes:
         proto = scene.prototypes[bake.index]
         res = bake.result
@@ -391,6 +393,14 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
             "density": bake.density_source,
             "e_scattered_mean": {m: v.mean(axis=0).tolist() for m, v in scattered.items()},
         })
+    world = exact.world if exact else (gathered.world if gathered else assemble(scene))
+    best_of = {b.index: getattr(b.result, best_name) for b in bakes}
+    pv, at = bake_instance_edits(
+        scene, "spp", world,
+        exact.result.e_direct if exact else from_prototypes(world, {i: r.direct for i, r in best_of.items()}),
+        gathered.result.e_scattered if gathered else from_prototypes(world, {i: r.scattered for i, r in best_of.items()}))
+    edits.primvars += pv
+    edits.attributes += at
     progress.step(f"writing {out}")
     report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
     report.stats = {

@@ -137,6 +137,9 @@ class Scene:
     instances: tuple[Instance, ...]
     lights: tuple[Light, ...] = field(default_factory=tuple)
     default_prim: str | None = None
+    instancer_sizes: dict = field(default_factory=dict)
+    """Point instancer path -> its number of instances (len(protoIndices), masked ones included): the length
+    of a per-instance primvar on it."""
 
     @property
     def up(self) -> np.ndarray:

@@ -94,6 +94,7 @@ class _Reader:
     lights: list[Light] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     keys: dict[tuple[str, str], int] = field(default_factory=dict)
+    instancer_sizes: dict[str, int] = field(default_factory=dict)
 
     # -- meshes -----------------------------------------------------------
     def read_mesh(self, prim: Usd.Prim, to_proto: np.ndarray, *, editable: bool) -> MeshPart | None:
@@ -212,6 +213,7 @@ class _Reader:
             instances=tuple(self.instances),
             lights=tuple(self.lights),
             default_prim=str(dp.GetPath()) if dp else None,
+            instancer_sizes=dict(self.instancer_sizes),
         )
 
     def native_instance(self, prim: Usd.Prim) -> None:
@@ -236,6 +238,7 @@ class _Reader:
             self.warnings.append(f"{self.path}: point instancer <{prim.GetPath()}> has no protoIndices; skipped.")
             return
         proto_indices = np.asarray(proto_indices, dtype=np.int64)
+        self.instancer_sizes[str(prim.GetPath())] = int(proto_indices.size)
         mask = np.asarray(pi.ComputeMaskAtTime(t) or [True] * len(proto_indices), dtype=bool)
         world = _matrix(self.xf.GetLocalToWorldTransform(prim))
         proto_ids: dict[int, int] = {}

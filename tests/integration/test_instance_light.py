@@ -1,0 +1,65 @@
+"""Per-instance light on the bundled forest (pipeline.instances): where each value goes, and what it is."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools.lighting.optics import parse_leaf_optics
+from foliage_tools.pipeline.direct import DirectChoice, bake_direct
+from foliage_tools.pipeline.report import Silent
+from foliage_tools.pipeline.smax import SmaxParams, run_smax
+from foliage_tools.pipeline.stage import begin_bake
+from foliage_tools.scene.read import open_stage
+from tests.integration.test_cli_errors import foliage
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+DIRECT = DirectChoice(samples=64)
+
+
+def _forest_with_a_masked_instance(tmp_path: Path) -> Path:
+    for name in ("forest_small.usda", "tree_small.usda"):
+        shutil.copy(EXAMPLES / name, tmp_path / name)
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(tmp_path / "forest_small.usda"))
+    UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Grove")).DeactivateId(4)
+    stage.GetRootLayer().Save()
+    return tmp_path / "forest_small.usda"
+
+
+def test_instance_means_land_on_the_instancer_and_the_native_instances(tmp_path):
+    from pxr import UsdGeom
+
+    forest = _forest_with_a_masked_instance(tmp_path)
+    run_smax(forest, tmp_path / "f.smax.usda", SmaxParams(optics=parse_leaf_optics(None), direct=DIRECT))
+    stage = open_stage(tmp_path / "f.smax.usda")
+    pv = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Grove"))
+    grove = pv.GetPrimvar("foliage:smax:instanceDirect")
+    assert grove.GetInterpolation() == "vertex"
+    grove_d = np.asarray(grove.Get(), dtype=np.float64)
+    grove_s = np.asarray(pv.GetPrimvar("foliage:smax:instanceScattered").Get(), dtype=np.float64)
+    assert grove_d.shape == grove_s.shape == (12, 3)  # one element per entry of protoIndices
+    assert np.all(grove_d[4] == 0) and np.all(grove_s[4] == 0)  # the masked instance
+    # independently: the area-weighted mean of the exact per-leaf E_direct over each instance's leaves
+    _, scene, sun = begin_bake("smax", forest, None, None, Silent())
+    exact = bake_direct(scene, sun, DIRECT, Silent())
+    w = exact.world
+    means = {}
+    for k, inst in enumerate(scene.instances):
+        s = w.instance_slice(k)
+        means[inst.path] = np.sum(w.leaf_area[s] * exact.result.e_direct[s]) / w.leaf_area[s].sum()
+    visible = [i for i in range(12) if i != 4]
+    np.testing.assert_allclose(grove_d[visible, 0], [means[f"/World/Grove[{i}]"] for i in visible], rtol=1e-5)
+    trees = [p for p in means if p.startswith("/World/Trees/")]
+    assert len(trees) == 4
+    for path in trees:
+        d = np.asarray(stage.GetPrimAtPath(path).GetAttribute("foliage:smax:instanceDirect").Get())
+        assert d[0] == np.float32(means[path])
+        assert np.all(np.asarray(stage.GetPrimAtPath(path).GetAttribute("foliage:smax:instanceScattered").Get()) > 0)
+    # the trees stand apart but not alone: their direct light differs from instance to instance
+    vals = np.array(list(means.values()))
+    assert vals.std() > 0.003 * vals.mean()
+    assert foliage("validate", tmp_path / "f.smax.usda").returncode == 0
