@@ -545,6 +545,10 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
     if Path(out).resolve() == Path(path).resolve():
         raise OutputError(f"@{out}@ is the input file; give another output path.")
     paths = frame_paths(Path(out), params.frame_count, params.sequence)
+    if Path(out).parent.is_dir():  # what killed runs left for these images: finished or removed (scene.atomic)
+        from foliage_tools.scene.atomic import recover
+
+        recover(Path(out).parent, [p.name for p in paths], report.warnings)
 
     progress.step(f"reading {path}")
     scene, warnings = read_scene(path)
