@@ -103,8 +103,10 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
     Exits 1 when an error is found (or a warning, with --strict), 0 when clean.
     Rules: leaf meshes found; finite geometry and valid topology; no degenerate
     triangles (warning); primvar lengths match their interpolation; every
-    referenced .vdb exists and holds its named grid with finite values; plus
-    USD's composition, stage-metadata, shading and lux validators.
+    referenced .vdb exists and holds its named grid with finite values; each
+    bake layer's grid files and upstream layers are the ones it was written
+    with (content hashes it records: a file from another run is named as
+    stale); plus USD's composition, stage-metadata, shading and lux validators.
 
     \b
     Example (CI):

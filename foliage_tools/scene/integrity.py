@@ -46,6 +46,31 @@ def new_commit_id() -> str:
     return secrets.token_hex(8)
 
 
+def utc_now() -> str:
+    """The time a file is written, as recorded (ISO 8601, UTC, microseconds: strings sort as times)."""
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def written(path: Path) -> str | None:
+    """When foliage-tools wrote ``path``, as recorded in the file itself (a layer's record, a grid's metadata), or None."""
+    path = Path(path)
+    if path.suffix == ".vdb":
+        from foliage_tools.scene.vdb import file_metadata
+
+        value = file_metadata(path).get("foliage:written")
+    else:
+        value = (record_of(path) or {}).get("written")
+    return str(value) if value else None
+
+
+def _older(a: Path, b: Path) -> Path:
+    """The one of two files written earlier: by their recorded times, else (a file from elsewhere) by mtime."""
+    ta, tb = written(a), written(b)
+    if ta and tb and ta != tb:
+        return a if ta < tb else b
+    return a if a.stat().st_mtime_ns < b.stat().st_mtime_ns else b
+
+
 def digest(path: Path) -> str:
     """``sha256:<hex>`` of a file's content (cached per file version)."""
     st = os.stat(path)
@@ -115,7 +140,7 @@ def seal(layer: Sdf.Layer, locate: Callable[[str], Path], commit: str) -> None:
     data = dict(layer.customLayerData)
     data[SEAL_KEY] = {
         "commit": commit,
-        "written": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ"),
+        "written": utc_now(),
         "version": __version__,
         "files": files,
     }
@@ -144,7 +169,7 @@ def check_layer(layer_path: Path) -> list[str]:
         found = digest(f)
         if found == recorded:
             continue
-        stale = layer_path if layer_path.stat().st_mtime_ns < f.stat().st_mtime_ns else f
+        stale = _older(layer_path, f)
         problems.append(
             f"@{layer_path}@ was written with another @{asset}@ than the one there now (content {recorded[7:19]}… recorded, "
             f"{found[7:19]}… found): the two come from different runs, and @{stale}@, the older, is stale. Run the "

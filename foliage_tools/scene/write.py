@@ -19,7 +19,7 @@ import numpy as np
 
 from foliage_tools.errors import OutputError
 from foliage_tools.scene.atomic import atomic_outputs, check_name_fits, check_writable, recover
-from foliage_tools.scene.integrity import locator, new_commit_id, seal
+from foliage_tools.scene.integrity import locator, new_commit_id, seal, utc_now
 from foliage_tools.scene.schemas import LIGHTING_API, register
 from foliage_tools.scene.vdb import Grid, write_vdb
 
@@ -169,8 +169,9 @@ def write_layer(input_path: Path, out: Path, edits: LayerEdits, *, input_stage_m
         check_name_fits(f)
     with atomic_outputs([*vdb_files, out]) as temps:
         commit = new_commit_id()
+        meta = {"creator": "foliage-tools", "foliage:commit": commit, "foliage:written": utc_now()}  # integrity.written
         for vol in edits.volumes:
-            write_vdb(temps[vol.vdb_file], list(vol.grids), metadata={"creator": "foliage-tools", "foliage:commit": commit})
+            write_vdb(temps[vol.vdb_file], list(vol.grids), metadata=meta)
         tmp = temps[out]
         layer = Sdf.Layer.CreateNew(str(tmp))
         if layer is None:  # pragma: no cover - CreateNew raises on failure in practice

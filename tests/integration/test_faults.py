@@ -87,6 +87,19 @@ def test_lb_killed_between_its_grid_and_its_layer_is_refused_then_finished_by_th
     assert hidden(tmp_path) == [] and foliage("validate", out).returncode == 0
 
 
+def test_the_stale_file_is_named_by_when_each_was_written_and_preview_refuses_the_pair(tmp_path, simple_tree):
+    d = tmp_path / "d.usda"
+    assert foliage("density", simple_tree, "-o", d, "--resolution", "8").returncode == 0
+    shutil.copy(tmp_path / "d.vdb", tmp_path / "older.vdb")
+    assert foliage("density", simple_tree, "-o", d, "--resolution", "10").returncode == 0
+    shutil.copy(tmp_path / "older.vdb", tmp_path / "d.vdb")  # an old grid copied over the new one: its mtime is now
+    v = foliage("validate", d)
+    assert v.returncode == 1 and "d.vdb@, the older, is stale" in v.stdout, v.stdout
+    p = foliage("preview", d, "-o", tmp_path / "p.png", "--method", "direct")
+    assert p.returncode == 2 and "d.vdb@, the older, is stale" in p.stderr, p.stderr
+    assert not (tmp_path / "p.png").exists()
+
+
 def _bake_states(tmp_path: Path) -> tuple[dict, dict, list[Path]]:
     """An old bake, then a new one (another sun) with a copy of OUTDIR before each of its renames."""
     out = tmp_path / "out"
