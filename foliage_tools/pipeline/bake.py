@@ -19,6 +19,7 @@ work.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,6 +78,7 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
         names = planned_outputs(path, params)
         _check_outputs(path, outdir, names)
         recover(outdir, [label, *names], report.warnings)
+        report.warnings += _legacy_staging(outdir)
         commit = Commit(outdir, label)
     except BaseException:
         _remove_empty(created)
@@ -176,6 +178,18 @@ def _remove_empty(dirs: list[Path]) -> None:
             d.rmdir()
         except OSError:
             pass
+
+
+def _legacy_staging(outdir: Path) -> list[str]:
+    """Earlier versions staged a bake beside OUTDIR, in ``.OUTDIR.tmp-XXXXXXXX`` (no process id): report, never remove, those."""
+    target = outdir.absolute()
+    pattern = re.compile(re.escape(f".{target.name}.tmp-") + r"[A-Za-z0-9_]{8}")
+    try:
+        found = sorted(p for p in target.parent.iterdir() if pattern.fullmatch(p.name) and p.is_dir())
+    except OSError:
+        return []
+    return [f"@{p}@ looks like the staging directory of a bake by an earlier foliage-tools version that was killed; "
+            "nothing uses it: remove it once no such bake is running." for p in found]
 
 
 def _check_outputs(path: Path, outdir: Path, names: list[str]) -> None:
