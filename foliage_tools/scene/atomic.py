@@ -338,6 +338,16 @@ def _disk_full(directory: Path, exc: BaseException) -> bool:
     return st.f_bavail * st.f_frsize < 64 * 1024
 
 
+def _short(exc: BaseException) -> str:
+    """One line of an error: USD's and OpenVDB's chain several ``Error in '...' at line N ...: 'what'`` lines."""
+    lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
+    if not lines:
+        return type(exc).__name__
+    pick = next((line for line in lines if "space" in line.lower()), lines[-1])
+    m = re.search(r": '(.*)'$", pick)
+    return m.group(1) if m else pick
+
+
 @contextlib.contextmanager
 def atomic_outputs(paths: list[Path]) -> Iterator[dict[Path, Path]]:
     """Yield {final path: staged path}; when the block ends without an error, move them all into place together.
@@ -361,7 +371,7 @@ def atomic_outputs(paths: list[Path]) -> Iterator[dict[Path, Path]]:
     except Exception as exc:
         if commit.staging is not None and _disk_full(commit.staging, exc):
             raise OutputError(
-                f"@{paths[-1]}@: the disk holding {directory} is full ({exc}); free some space or choose another "
+                f"@{paths[-1]}@: the disk holding {directory} is full ({_short(exc)}); free some space or choose another "
                 "output path. Nothing was written."
             ) from None
         if isinstance(exc, OSError):
