@@ -8,10 +8,12 @@ log), 130 interrupted.
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import logging
 import os
 import sys
 import tempfile
+import time
 import traceback
 from pathlib import Path
 from typing import Callable
@@ -21,7 +23,7 @@ from rich.markup import escape
 
 from foliage_tools import __version__
 from foliage_tools.cli import console
-from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERNAL, EXIT_INTERRUPTED, FoliageError
+from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_FINDINGS, EXIT_INTERNAL, EXIT_INTERRUPTED, FoliageError
 
 SCENE = click.argument("scene", type=click.Path(path_type=Path, dir_okay=True))
 OUT = click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), help="Output USD layer (.usda/.usdc); grids go beside it as .vdb files.")
@@ -47,23 +49,94 @@ def crash_log(exc: BaseException) -> Path:
     return path
 
 
+#: The name of the signal that interrupted the run (SIGTERM, SIGHUP), set by ``main``'s handler; None for Ctrl-C.
+last_signal: str | None = None
+
+
+def interrupted_message(exc: BaseException | None) -> str:
+    from foliage_tools.scene.atomic import InterruptedAfterCommit
+
+    how = f"interrupted ({last_signal})" if last_signal else "interrupted"
+    if isinstance(exc, InterruptedAfterCommit):  # held back until the result was whole (scene.atomic)
+        return f"{how} just after the outputs were written: {', '.join(map(str, exc.paths))}."
+    return f"{how}; no output was written."
+
+
+#: errno values that are the environment's doing, not a bug (exit 2, naming the file): what to do about each.
+ENVIRONMENT_ERRNOS = {
+    errno.ENOSPC: "free some space or choose another output path",
+    errno.EDQUOT: "free some space or choose another output path",
+    errno.ENAMETOOLONG: "choose a shorter path",
+    errno.EROFS: "choose a writable output path",
+    errno.EACCES: "check the permissions or choose another path",
+    errno.EPERM: "check the permissions or choose another path",
+    errno.EMFILE: "raise the open-file limit (ulimit -n)",
+    errno.EIO: "check the disk or the network filesystem",
+}
+
+
 def run(body: Callable[[], int]) -> None:
-    """Run a command body, mapping every outcome to an exit code."""
+    """Run a command body, mapping every outcome to an exit code (and, with ``--json``, a JSON error object)."""
+    started = time.perf_counter()
     try:
         code = body()
     except FoliageError as exc:
         console.stderr.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False, markup=True, soft_wrap=True)
         code = exc.exit_code
-    except KeyboardInterrupt:
-        console.stderr.print("interrupted; no output was written.")
+        _json_error(started, code, type(exc).__name__, str(exc))
+    except KeyboardInterrupt as exc:
+        console.stderr.print(interrupted_message(exc), highlight=False, soft_wrap=True)
         code = EXIT_INTERRUPTED
+        _json_error(started, code, "Interrupted", interrupted_message(exc))
     except (click.exceptions.Exit, click.ClickException):
         raise
+    except OSError as exc:
+        if exc.errno not in ENVIRONMENT_ERRNOS:
+            code = _internal(started, exc)
+        else:  # DESIGN.md section 3: bad input or environment is exit 2, naming the file
+            where = f"@{exc.filename}@: " if exc.filename else ""
+            message = f"{where}{exc.strerror or exc}; {ENVIRONMENT_ERRNOS[exc.errno]}."
+            console.stderr.print(f"[red]error:[/red] {escape(message)}", highlight=False, markup=True, soft_wrap=True)
+            code = EXIT_BAD_INPUT
+            _json_error(started, code, "EnvironmentError", message)
+    except MemoryError:
+        message = ("this job needs more memory than is available; lower its size (--resolution, --directions, --paths, ...). "
+                   "`foliage plan` estimates the memory of a bake.")
+        console.stderr.print(f"[red]error:[/red] {escape(message)}", highlight=False, markup=True, soft_wrap=True)
+        code = EXIT_BAD_INPUT
+        _json_error(started, code, "MemoryError", message)
     except Exception as exc:  # the top-level handler: anything else is our bug
-        log = crash_log(exc)
-        console.stderr.print(f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))}\nA crash log is at {log}; please attach it to a bug report.", highlight=False, soft_wrap=True)
-        code = EXIT_INTERNAL
+        code = _internal(started, exc)
     sys.exit(code)
+
+
+def _internal(started: float, exc: BaseException) -> int:
+    log = crash_log(exc)
+    console.stderr.print(f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))}\nA crash log is at {log}; please attach it to a bug report.", highlight=False, soft_wrap=True)
+    _json_error(started, EXIT_INTERNAL, type(exc).__name__, f"internal error: {exc}", crash_log=str(log))
+    return EXIT_INTERNAL
+
+
+def error_report(command: str | None, inputs: list[str], seconds: float, code: int, kind: str, message: str, **extra) -> dict:
+    """The ``--json`` object of a failed run: the report's fields, empty, and ``error`` (schemas/json/report.schema.json)."""
+    return {
+        "command": command or "foliage", "version": __version__, "inputs": inputs, "outputs": [],
+        "seconds": round(seconds, 6), "warnings": [], "stats": {},
+        "error": {"code": code, "type": kind, "message": message, **extra},
+    }
+
+
+def _json_error(started: float, code: int, kind: str, message: str, **extra) -> None:
+    """With ``--json``, a failure still prints one JSON object on stdout, with ``error`` set (DESIGN.md section 3)."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is None or not ctx.params.get("as_json"):
+        return
+    scene = ctx.params.get("scene")
+    inputs = [str(scene)] if scene is not None else []
+    try:
+        console.print_json(error_report(ctx.info_name, inputs, time.perf_counter() - started, code, kind, message, **extra))
+    except OSError:  # stdout is gone (a closed pipe): the exit code still says it
+        pass
 
 
 def setup_logging(verbose: int, quiet: bool) -> None:

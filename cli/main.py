@@ -8,6 +8,7 @@ their own modules and are added to the group at the bottom.
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from foliage_tools import __version__
-from foliage_tools.cli import console
+from foliage_tools.cli import common, console
 from foliage_tools.cli.common import OUT, SCENE, common_options, execute, run, setup_logging
 from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED
 
@@ -102,8 +103,10 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
     Exits 1 when an error is found (or a warning, with --strict), 0 when clean.
     Rules: leaf meshes found; finite geometry and valid topology; no degenerate
     triangles (warning); primvar lengths match their interpolation; every
-    referenced .vdb exists and holds its named grid with finite values; plus
-    USD's composition, stage-metadata, shading and lux validators.
+    referenced .vdb exists and holds its named grid with finite values; each
+    bake layer's grid files and upstream layers are the ones it was written
+    with (content hashes it records: a file from another run is named as
+    stale); plus USD's composition, stage-metadata, shading and lux validators.
 
     \b
     Example (CI):
@@ -245,21 +248,51 @@ def _add_commands() -> None:
 _add_commands()
 
 
+def _interrupt(signum: int, _frame) -> None:
+    """SIGTERM / SIGHUP: stop like Ctrl-C, so temporaries are removed and the exit code is 130."""
+    common.last_signal = signal.Signals(signum).name
+    raise KeyboardInterrupt(common.last_signal)
+
+
+def install_interrupt_handlers() -> None:
+    """SIGTERM (timeouts, CI cancellation, Kubernetes) and SIGHUP interrupt a run as SIGINT does (DESIGN.md section 3).
+
+    A signal the caller set to be ignored (``nohup`` ignores SIGHUP) stays ignored.
+    """
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        if signal.getsignal(sig) == signal.SIG_DFL:
+            signal.signal(sig, _interrupt)
+
+
 def main() -> None:
     """The ``foliage`` command: click's own handling, except that an interrupt anywhere is exit 130.
 
     click's standalone mode turns Ctrl-C / SIGINT outside a command body (while a command's modules are
-    still being imported, say) into "Aborted!" and exit 1; DESIGN.md section 3 says 130.
+    still being imported, say) into "Aborted!" and exit 1; DESIGN.md section 3 says 130. SIGTERM and
+    SIGHUP are interrupts too.
     """
+    install_interrupt_handlers()
     try:
         code = cli.main(prog_name="foliage", standalone_mode=False)
     except click.exceptions.Abort:
-        console.stderr.print("interrupted; no output was written.")
+        console.stderr.print(common.interrupted_message(None))
         code = EXIT_INTERRUPTED
+        _json_error(code, "Interrupted", common.interrupted_message(None))
     except click.ClickException as exc:
         exc.show()
         code = exc.exit_code
+        _json_error(code, type(exc).__name__, exc.format_message())
     sys.exit(code or 0)
+
+
+def _json_error(code: int, kind: str, message: str) -> None:
+    """A usage error found before the command ran (bad option, missing file): still one JSON object with ``--json``."""
+    args = sys.argv[1:]
+    if "--json" not in args:
+        return
+    words = [a for a in args if not a.startswith("-")]
+    command = words[0] if words and words[0] in cli.commands else None
+    console.print_json(common.error_report(command, words[1:2] if command else [], 0.0, code, kind, message))
 
 
 if __name__ == "__main__":

@@ -5,19 +5,21 @@ holds the whole bake, since each layer sublayers the one before), a preview
 image comparing direct light with the LB and s_max bakes, and with ``with_reference`` a bench
 report (JSON + plot).
 
-All or nothing, like every command's outputs: the stages write into a
-temporary sibling of OUTDIR (same parent, so the relative paths to the input
-stay valid) and their files are moved into OUTDIR only when every stage has
-succeeded. A failed or interrupted bake leaves OUTDIR as it was (and removes
-the directories it created); the error names the stage.
+All or nothing, as one result (``scene.atomic``): the stages write into a
+hidden staging directory inside OUTDIR (``.NAME.bake.tmp-PID-TOKEN``; inside,
+not beside it, so an OUTDIR that is a mount point works), and their files
+are moved into OUTDIR together only when every stage has succeeded, grids
+first and the final layer last, each layer recording the content hash of the
+files below it. A failed or interrupted bake leaves OUTDIR as it was (and
+removes the directories it created); the error names the stage. OUTDIR's
+writability, and output names taken by directories, are checked before any
+work.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +28,7 @@ from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.direct import DirectChoice
 from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.scene.atomic import Commit, recover
 
 
 @dataclass(frozen=True)
@@ -52,37 +55,44 @@ def _stage(name: str, fn, *args, **kwargs):
         raise
 
 
+def planned_outputs(path: Path, params: BakeParams) -> list[str]:
+    """The names a bake writes into OUTDIR (one ``.vdb`` per prototype adds ``NN_name`` names: see density.vdb_path)."""
+    stem = Path(path).stem
+    names = [f"{stem}.{s}.{ext}" for s in ("density", "smax", "spp", "lb") for ext in ("usda", "vdb")]
+    names.remove(f"{stem}.smax.vdb")
+    names.append(f"{stem}.png")
+    if params.with_reference:
+        names += ["bench.json", "bench.png"]
+    return names
+
+
 def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress | None = None) -> Report:
     progress = progress or Silent()
     report = Report(command="bake", inputs=[str(path)])
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise OutputError(f"@{outdir}@ exists and is not a directory; give a directory for the bake outputs.")
-    target = outdir.absolute()
-    created = _make_parents(target.parent, outdir)
+    created = _make_dirs(outdir.absolute(), outdir)
+    label = f"{Path(path).stem}.bake"
     try:
-        work, staged = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent)), True
-    except OSError as exc:
-        if not (target.is_dir() and os.access(target, os.W_OK)):
-            _remove_empty(created)
-            raise OutputError(f"@{outdir}@: cannot write in {target.parent} ({exc.strerror}); choose another output directory.") from None
-        # OUTDIR exists and is writable but its parent is not: stage in OUTDIR itself (each file still atomic)
-        work, staged = target, False
-        report.warnings.append(f"{target.parent} is not writable, so the stages are written straight into {outdir}: "
-                               "a bake that fails part-way leaves the stages it finished there.")
-    try:
-        stages = _run_stages(path, work, params, progress)
-        moved = _move_into(work, outdir, path) if staged else {f: f for f in work.iterdir()}
+        names = planned_outputs(path, params)
+        _check_outputs(path, outdir, names)
+        recover(outdir, [label, *names], report.warnings)
+        report.warnings += _legacy_staging(outdir)
+        commit = Commit(outdir, label)
     except BaseException:
-        if staged:
-            shutil.rmtree(work, ignore_errors=True)
         _remove_empty(created)
         raise
-    if staged:
-        shutil.rmtree(work, ignore_errors=True)
-    final = moved[work / f"{Path(path).stem}.lb.usda"]
+    try:
+        stages = _run_stages(path, commit.staging, params, progress)
+        moved = _commit(path, outdir, commit)
+    except BaseException:
+        commit.discard()
+        _remove_empty(created)
+        raise
+    final = moved[f"{Path(path).stem}.lb.usda"]
     for r in stages.values():
-        r.outputs = [str(moved.get(Path(o), o)) for o in r.outputs]
+        r.outputs = [str(moved.get(Path(o).name, o)) for o in r.outputs]
     for name, r in stages.items():
         report.outputs += r.outputs
         report.warnings += [f"{name}: {w}" for w in r.warnings]
@@ -146,10 +156,10 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) 
     return stages
 
 
-def _make_parents(parent: Path, outdir: Path) -> list[Path]:
-    """Create the missing directories above OUTDIR; return them deepest first, to remove on failure."""
+def _make_dirs(target: Path, outdir: Path) -> list[Path]:
+    """Create OUTDIR and the missing directories above it; return them deepest first, to remove on failure."""
     missing = []
-    d = parent
+    d = target
     while not d.exists():
         missing.append(d)
         d = d.parent
@@ -170,21 +180,50 @@ def _remove_empty(dirs: list[Path]) -> None:
             pass
 
 
-def _move_into(work: Path, outdir: Path, path: Path) -> dict[Path, Path]:
-    """Move the finished files from ``work`` into OUTDIR (grids first, layers last); {work file: final file}."""
+def _legacy_staging(outdir: Path) -> list[str]:
+    """Earlier versions staged a bake beside OUTDIR, in ``.OUTDIR.tmp-XXXXXXXX`` (no process id): report, never remove, those."""
+    target = outdir.absolute()
+    pattern = re.compile(re.escape(f".{target.name}.tmp-") + r"[A-Za-z0-9_]{8}")
+    try:
+        found = sorted(p for p in target.parent.iterdir() if pattern.fullmatch(p.name) and p.is_dir())
+    except OSError:
+        return []
+    return [f"@{p}@ looks like the staging directory of a bake by an earlier foliage-tools version that was killed; "
+            "nothing uses it: remove it once no such bake is running." for p in found]
+
+
+def _check_outputs(path: Path, outdir: Path, names: list[str]) -> None:
+    """Before any work: no output may be a directory, or a file the input uses."""
+    from foliage_tools.scene.atomic import check_name_fits
     from foliage_tools.scene.write import input_files
 
-    files = sorted(work.iterdir(), key=lambda f: (f.suffix not in (".vdb",), f.suffix in (".usda", ".usdc", ".usd"), f.name))
     used = input_files(path)
-    clash = [outdir / f.name for f in files if (outdir / f.name).resolve() in used]
+    for name in names:
+        f = outdir / name
+        if f.is_dir() and not f.is_symlink():
+            raise OutputError(f"@{f}@ is a directory, where the bake writes its file {name}; remove or rename it, or bake "
+                              "into another directory. Nothing was written.")
+        if f.resolve() in used:
+            raise OutputError(f"@{f}@ is a file the input @{path}@ uses; bake into another directory (inputs are never modified).")
+        check_name_fits(f)
+
+
+def _commit(path: Path, outdir: Path, commit: Commit) -> dict[str, Path]:
+    """Move the finished bake into OUTDIR as one result; {name: final path}.
+
+    The layers were written in the staging directory, so the one that
+    sublayers the input (density) refers to it from there: each path leading
+    out of the staging directory is rewritten for OUTDIR, and every layer is
+    sealed again (its record of the files below it), bottom layer first.
+    """
+    from foliage_tools.scene.write import input_files, relocate_and_seal
+
+    names = commit.files()
+    used = input_files(path)
+    clash = [outdir / n for n in names if (outdir / n).resolve() in used]
     if clash:
         raise OutputError(f"@{clash[0]}@ is a file the input @{path}@ uses; bake into another directory (inputs are never modified).")
-    try:
-        outdir.mkdir(exist_ok=True)
-        moved = {}
-        for f in files:
-            os.replace(f, outdir / f.name)
-            moved[f] = outdir / f.name
-    except OSError as exc:
-        raise OutputError(f"@{outdir}@: cannot move the bake into place ({exc.strerror}).") from None
-    return moved
+    layers = relocate_and_seal(commit.staging, outdir, [n for n in names if Path(n).suffix in (".usda", ".usdc", ".usd")])
+    others = [n for n in names if n not in layers]
+    finals = commit.commit([*others, *layers])  # grids, images and reports first; the layers bottom-up, the final one last
+    return {f.name: f for f in finals}

@@ -14,7 +14,7 @@ from foliage_tools.errors import UsageError
 from foliage_tools.geometry.rays import RayScene, count_crossings
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
-from foliage_tools.pipeline.reference import ReferenceParams, bake_reference, noise_warnings
+from foliage_tools.pipeline.reference import ReferenceParams, bake_reference, noise_warnings, unlit_warnings, unmeasured
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.pipeline.world import World
@@ -124,7 +124,11 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
         rows.append({"name": m.name, "available": True, "description": m.description, "seconds": seconds,
                      "seconds_volume": seconds_volume, **errors, "stats": out.stats})
         progress.advance()
+    why = unmeasured(res, params.optics, params.paths_flag)
+    if why:  # its noise reads 0 then: say so, never silently (the methods' errors against zeros are null above)
+        report.warnings.append(f"the reference is not a measurement: {why}")
     report.warnings.extend(noise_warnings(int(res.paths), float(res.noise_rel), params.paths_flag))
+    report.warnings.extend(unlit_warnings(res, params.paths_flag))
     if params.noise is not None and res.noise_rel > params.noise:
         report.warnings.append(f"the reference stopped at {params.paths_flag} {params.paths:,} with E_scattered noise "
                                f"{res.noise_rel:.4f}, above {params.noise_flag} {params.noise:g}; raise {params.paths_flag}.")

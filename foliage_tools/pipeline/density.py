@@ -200,9 +200,12 @@ def leaf_id_edits(scene: Scene, warnings: list[str]) -> list[PrimvarEdit]:
 
 
 def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progress | None = None) -> Report:
+    from foliage_tools.pipeline.stage import require_consistent_input  # stage imports this module
+
     progress = progress or Silent()
     report = Report(command="density", inputs=[str(path)])
-    check_output_path(path, out)
+    check_output_path(path, out, warnings=report.warnings)
+    require_consistent_input(path)
     progress.step(f"reading {path}")
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)

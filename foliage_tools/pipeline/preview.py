@@ -545,6 +545,12 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
     if Path(out).resolve() == Path(path).resolve():
         raise OutputError(f"@{out}@ is the input file; give another output path.")
     paths = frame_paths(Path(out), params.frame_count, params.sequence)
+    from foliage_tools.pipeline.stage import require_consistent_input
+    from foliage_tools.scene.atomic import recover
+
+    if Path(out).parent.is_dir():  # what killed runs left for these images: finished or removed
+        recover(Path(out).parent, [p.name for p in paths], report.warnings)
+    require_consistent_input(Path(path))  # a layer and a grid from different runs would be drawn as one bake
 
     progress.step(f"reading {path}")
     scene, warnings = read_scene(path)

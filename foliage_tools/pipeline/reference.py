@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools import __version__
-from foliage_tools.errors import UsageError
+from foliage_tools.errors import FindingsError, UsageError
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.lighting import reference
 from foliage_tools.lighting.optics import LeafOptics
@@ -48,6 +48,41 @@ def noise_warnings(paths: int, noise_rel: float, flag: str = "--paths") -> list[
         f"half-runs), so leaf by leaf it is mostly noise. Raise {flag}: the noise falls at best as 1/sqrt(paths), so "
         f"reaching {NOISE_TARGET} takes at least {need:,}."
     ]
+
+
+#: Sun paths per leaf for a per-leaf E_scattered noise near :data:`NOISE_TARGET` on the example tree
+#: (1M paths over 1500 leaves give 0.25; the noise falls as 1/sqrt(paths)).
+PATHS_PER_LEAF = 1000
+
+
+def unmeasured(res: reference.ReferenceResult, optics: LeafOptics, flag: str = "--paths") -> str | None:
+    """Why the reference's E_scattered noise cannot be measured (None when it can).
+
+    The two-halves estimate is 0/0 when no sun path was scattered onto a leaf
+    (E_scattered is zero everywhere): it then reads 0, which would pass any
+    noise target although the run holds no information (DESIGN.md section 4:
+    never silently under-sampled). With black leaves and wood nothing can
+    scatter, and zero is the exact answer.
+    """
+    leaves = int(res.e_scattered.shape[0])
+    need = max(100_000, PATHS_PER_LEAF * leaves)
+    can_scatter = bool(np.any(optics.albedo > 0) or np.any(optics.wood_reflectance > 0))
+    if (can_scatter and not np.any(res.e_scattered > 0)) or not math.isfinite(float(res.noise_rel)):
+        lit = "" if np.any(res.e_direct > 0) else " (nor did any reach a leaf directly)"
+        return (f"none of the {int(res.paths):,} sun paths was scattered onto a leaf{lit}, so E_scattered is zero "
+                f"everywhere and its noise cannot be measured. Raise {flag}: about {PATHS_PER_LEAF:,} per leaf "
+                f"({need:,} for these {leaves:,} leaves) gives a per-leaf noise near {NOISE_TARGET}.")
+    return None
+
+
+def unlit_warnings(res: reference.ReferenceResult, flag: str = "--paths") -> list[str]:
+    """A warning when many leaves were reached by no sun path at all (their values are zero for lack of samples)."""
+    hits = np.asarray(res.hits)
+    none = int(np.count_nonzero(hits == 0))
+    if hits.size and none > 0.1 * hits.size:
+        return [f"{none:,} of {hits.size:,} leaves were reached by no sun path: their E_direct and E_scattered are zero "
+                f"for lack of samples, not of light. Raise {flag} (about {PATHS_PER_LEAF:,} per leaf)."]
+    return []
 
 
 @dataclass(frozen=True)
@@ -141,14 +176,19 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
                 "foliage:ref:noiseRel": (float(res.noise_rel), "Float"),
                 "foliage:ref:version": (__version__, "String"),
             }))
+    why = unmeasured(res, params.optics)
+    if why:  # DESIGN.md section 3: a bake that failed its own accuracy check; a reference of zeros must not be used
+        raise FindingsError(f"accuracy check failed: @{path}@: {why} Nothing was written.")
     if res.truncated:
         report.warnings.append(f"{res.truncated} path(s) were abandoned after {reference.ReferenceParams().max_events} events.")
     report.warnings.extend(noise_warnings(int(res.paths), float(res.noise_rel)))
-    if params.noise is not None and res.noise_rel > params.noise:
-        report.warnings.append(
+    report.warnings.extend(unlit_warnings(res))
+    if params.noise is not None and res.noise_rel > params.noise:  # asked for, not reached: the accuracy check failed
+        report.findings.append(
             f"the reference reached --paths {params.paths:,} at E_scattered noise {res.noise_rel:.4f}, above --noise "
-            f"{params.noise:g}; raise --paths (the noise falls as 1/sqrt(paths): about "
-            f"{int(math.ceil(res.paths * (res.noise_rel / params.noise) ** 2 / 1e6)):,}M would do)."
+            f"{params.noise:g}. The layer was written with that noise in foliage:ref:noiseRel; raise --paths (the noise "
+            f"falls as 1/sqrt(paths): about {max(1, int(math.ceil(res.paths * (res.noise_rel / params.noise) ** 2 / 1e6))):,}M "
+            "would do)."
         )
     pv, at = bake_instance_edits(scene, "ref", bake.world, res.e_direct, res.e_scattered)  # where each instance stands
     edits.primvars += pv

@@ -6,19 +6,21 @@ from pathlib import Path
 
 import numpy as np
 
+from foliage_tools.errors import InputError
 from foliage_tools.geometry.sun import Sun, choose_sun, to_prototype_space
 from foliage_tools.pipeline.density import require_leaves
 from foliage_tools.pipeline.report import Progress, Report
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.read import read_scene
-from foliage_tools.scene.write import check_output_path
+from foliage_tools.scene.write import check_output_path, input_files
 
 
 def begin_bake(command: str, path: Path, out: Path | None, sun_flag, progress: Progress) -> tuple[Report, Scene, Sun]:
-    """A report, the scene (with leaves) and the sun; refuses a bad output before any work."""
+    """A report, the scene (with leaves) and the sun; refuses a bad output, or an input mixing two runs, before any work."""
     report = Report(command=command, inputs=[str(path)])
     if out is not None:
-        check_output_path(path, out, writes_grids=command in ("lb", "spp"))
+        check_output_path(path, out, writes_grids=command in ("lb", "spp"), warnings=report.warnings)
+    require_consistent_input(path)
     progress.step(f"reading {path}")
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
@@ -46,3 +48,13 @@ def first_instance_sun(scene: Scene, index: int, direction: np.ndarray) -> np.nd
     """A world direction toward the sun in prototype ``index``'s frame, as its first instance sees it."""
     insts = scene.instances_of(index)
     return to_prototype_space(direction, insts[0].transform) if insts else np.asarray(direction, dtype=np.float64)
+
+
+def require_consistent_input(path: Path) -> None:
+    """Refuse an input whose layers and grid files come from different runs (``scene.integrity``), naming the stale file."""
+    from foliage_tools.scene.integrity import check_layers
+
+    problems = check_layers(input_files(path))
+    if problems:
+        more = f" ({len(problems) - 1} more such file(s): `foliage validate` lists them.)" if len(problems) > 1 else ""
+        raise InputError(f"the input mixes results of different runs: {problems[0]}{more}")

@@ -1,22 +1,93 @@
-"""Atomic file output: write to a temporary sibling, then rename into place.
+"""Atomic output: the files of one result become visible together, or not at all.
 
-An interrupted or failed run leaves no partial output: either every file of a
-stage is renamed into place, or none is and the temporaries are removed.
+A result (a stage's layer and its ``.vdb`` grids, or every file of a
+``foliage bake``) is written into a hidden *staging directory* inside the
+output directory itself, ``.LABEL.tmp-PID-TOKEN`` (beside the outputs, so the
+final renames never cross a device: an output directory that is a mount point
+works). When every file is complete, :meth:`Commit.commit`
+
+1. refuses, before anything moves, a final name that is a directory;
+2. writes a journal (``.commit``, the list of names) into the staging
+   directory: from then on the new result is the result;
+3. renames the files into place, grids before the layers that refer to them,
+   with SIGINT, SIGTERM and SIGHUP held back until the last rename is done;
+4. removes the journal and the staging directory.
+
+POSIX cannot rename several files at once, so a process killed outright
+(SIGKILL, power loss) between two renames of step 3 leaves a mix of old and
+new files. Two things make that safe: the layers record the content hash of
+every grid file and upstream layer they were written with (``scene.integrity``),
+so ``validate`` and every stage reading the result refuse the mix and name the
+stale file; and the journal lets the next run on the same output finish the
+renames (:func:`recover`), which also removes the staging directories of
+runs that died before step 2. Commits into one directory are serialised by a
+lock on the directory, so two concurrent writers of one output cannot
+interleave their renames.
+
+Test hook: :data:`before_rename` (a callable) and the environment variable
+``FOLIAGE_TEST_KILL_AT_RENAME=N[:SIGNAL]`` (the process sends itself SIGNAL,
+default KILL, just before rename number N, counted from 0 within a commit)
+are checked before every rename of step 3 (of commits into a directory that
+is not itself a staging directory: the commits of ``bake``'s stages into its
+staging directory are invisible outside, and not counted).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
+import hashlib
 import os
+import re
+import secrets
+import shutil
+import signal
+import socket
 import tempfile
+import threading
+import time
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterable, Iterator
 
 from foliage_tools.errors import OutputError
 
+JOURNAL = ".commit"
+"""In a staging directory: the names to move into place, one a line, in order (present = committed)."""
+OWNER = ".owner"
+"""In a staging directory: ``HOST PID`` of the run that made it."""
+KILL_ENV = "FOLIAGE_TEST_KILL_AT_RENAME"
+
+#: Test hook: called as ``before_rename(index, staged_path, final_path)`` before each rename of a commit.
+before_rename: Callable[[int, Path, Path], None] | None = None
+
+#: Signals that interrupt a run (the CLI maps them to exit 130); held back during the renames.
+INTERRUPT_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+#: How long a commit waits for another run's commit into the same directory (seconds; commits take milliseconds).
+LOCK_TIMEOUT = 60.0
+
+_LABEL_MAX = 100  # keeps ``.LABEL.tmp-PID-TOKEN`` within NAME_MAX (255) whatever the output name
+_STAGING = re.compile(r"\.(?P<label>.+)\.tmp-(?P<pid>\d+)-(?P<token>[0-9a-f]+)")
+
+
+class InterruptedAfterCommit(KeyboardInterrupt):
+    """An interrupt that arrived during a commit: it was held back, and the result is complete in place."""
+
+    def __init__(self, paths: list[Path]) -> None:
+        super().__init__(f"interrupted after writing {', '.join(str(p) for p in paths)}")
+        self.paths = paths
+
+
+def staging_label(name: str) -> str:
+    """The LABEL of a staging directory for an output named ``name`` (shortened with a hash when long)."""
+    if len(name.encode()) <= _LABEL_MAX:
+        return name
+    return name[:60] + "~" + hashlib.sha1(name.encode()).hexdigest()[:12]
+
 
 def temp_sibling(path: Path) -> Path:
-    """A temporary name in the same directory (so the rename is atomic), keeping the extension."""
+    """The temporary name earlier versions wrote ``path`` under (``.STEM.tmp-PID.EXT``): :func:`recover` removes them."""
     return path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
 
 
@@ -24,6 +95,7 @@ def check_writable(path: Path) -> None:
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.exists():
         raise OutputError(f"@{path}@: the directory {parent} does not exist; create it first.")
+    check_name_fits(path)
     if path.is_dir():
         raise OutputError(f"@{path}@ is a directory; give a file name.")
     # os.access says yes to root on read-only mounts and special filesystems: try it for real
@@ -34,22 +106,353 @@ def check_writable(path: Path) -> None:
         raise OutputError(f"@{path}@: the directory {parent} is not writable ({exc.strerror}); choose another output path.") from None
 
 
+def check_name_fits(path: Path) -> None:
+    """Refuse a file name longer than its filesystem allows (ENAMETOOLONG), before any work."""
+    parent = path.parent if str(path.parent) else Path(".")
+    try:
+        limit = os.pathconf(parent, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        limit = 255
+    size = len(path.name.encode())
+    if size > limit:
+        raise OutputError(
+            f"@{path}@: the file name is {size} bytes long and this filesystem allows {limit}; choose a shorter output name."
+        )
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def _owner_alive(staging: Path, pid: int) -> bool:
+    """Whether the run that made ``staging`` may still be running (a run on another host counts as alive)."""
+    try:
+        host, _ = (staging / OWNER).read_text(encoding="utf-8").split()
+    except (OSError, ValueError):
+        host = socket.gethostname()
+    return host != socket.gethostname() or _alive(pid)
+
+
+@contextlib.contextmanager
+def _interrupts_held() -> Iterator[None]:
+    """Hold SIGINT/SIGTERM/SIGHUP back; one that arrived meanwhile is handled (and raises) when the block ends.
+
+    Done at Python level, by swapping the handlers: blocking the signals in
+    this thread would not do, since the kernel then hands a process-wide
+    signal to one of the library threads (TBB, numba) and Python still runs
+    the handler here at once. Signals without a Python handler (the default
+    action, ignored) are left as they are; only the main thread can swap
+    handlers, so elsewhere nothing is held back.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[tuple[int, object]] = []
+    previous = {}
+    for sig in INTERRUPT_SIGNALS:
+        handler = signal.getsignal(sig)
+        if callable(handler):
+            previous[sig] = handler
+            signal.signal(sig, lambda signum, frame: caught.append((signum, frame)))
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if caught:
+            signum, frame = caught[0]
+            previous[signum](signum, frame)
+
+
+@contextlib.contextmanager
+def _directory_lock(directory: Path) -> Iterator[None]:
+    """An exclusive lock on ``directory`` for the length of a commit (no lock where the filesystem has none)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        yield
+        return
+    try:
+        deadline = time.monotonic() + LOCK_TIMEOUT
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    raise OutputError(
+                        f"@{directory}@: another run has been moving its results into this directory for "
+                        f"{LOCK_TIMEOUT:.0f} s; is a foliage process stopped there? Try again when it has finished."
+                    ) from None
+                time.sleep(0.05)
+            except OSError:  # e.g. NFS without flock on directories: commits are not serialised there
+                break
+        yield
+    finally:
+        os.close(fd)
+
+
+def _fsync(path: Path, directory: bool = False) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY | (os.O_DIRECTORY if directory else 0))
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _kill_hook(index: int) -> None:
+    spec = os.environ.get(KILL_ENV)
+    if not spec:
+        return
+    at, _, name = spec.partition(":")
+    if int(at) == index:
+        os.kill(os.getpid(), getattr(signal, f"SIG{name or 'KILL'}"))
+
+
+def _move(directory: Path, staging: Path, names: list[str]) -> list[Path]:
+    """Step 3: rename ``names`` from ``staging`` into ``directory`` in order (the test hooks run before each)."""
+    done = []
+    visible = not _STAGING.fullmatch(directory.name)  # not a commit inside another result's staging directory
+    for i, name in enumerate(names):
+        src, dst = staging / name, directory / name
+        if visible:
+            if before_rename is not None:
+                before_rename(i, src, dst)
+            _kill_hook(i)
+        try:
+            os.replace(src, dst)
+        except OSError as exc:
+            left = [n for n in names if n not in {p.name for p in done}]
+            raise OutputError(
+                f"@{dst}@: cannot be moved into place ({exc.strerror}) after {len(done)} of {len(names)} files of the "
+                f"result were; {', '.join(left)} are still in @{staging}@. Fix the cause and run the command again: "
+                "it finishes this result first, then writes its own."
+            ) from None
+        done.append(dst)
+    return done
+
+
+class Commit:
+    """Files that become visible together in ``directory`` (module docstring).
+
+    Write each file to :meth:`path` (its final name inside the staging
+    directory), then call :meth:`commit`; :meth:`discard` (or leaving a
+    ``with`` block by an exception) removes the staging directory.
+    """
+
+    def __init__(self, directory: Path, name: str) -> None:
+        self.directory = Path(directory)
+        self.name = name
+        self.staging = self.directory / f".{staging_label(name)}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
+        try:
+            self.staging.mkdir()
+            (self.staging / OWNER).write_text(f"{socket.gethostname()} {os.getpid()}\n", encoding="utf-8")
+        except OSError as exc:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            raise OutputError(
+                f"@{self.directory / name}@: cannot write in {self.directory} ({exc.strerror}); "
+                "choose another output path. Nothing was written."
+            ) from None
+        self.committed: list[Path] | None = None
+
+    def __enter__(self) -> "Commit":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.discard()
+
+    def path(self, name: str) -> Path:
+        return self.staging / name
+
+    def files(self) -> list[str]:
+        """The names staged so far (hidden entries are the commit's own)."""
+        return sorted(p.name for p in self.staging.iterdir() if not p.name.startswith(".") and p.is_file())
+
+    def commit(self, names: Iterable[str]) -> list[Path]:
+        """Move ``names`` into place together (module docstring, steps 1-4); the final paths, in order."""
+        names = list(names)
+        missing = [n for n in names if not (self.staging / n).is_file()]
+        if missing:
+            raise ValueError(f"not staged: {missing}")
+        for n in names:
+            _fsync(self.staging / n)
+        try:
+            return self._commit(names)
+        except KeyboardInterrupt as exc:
+            if self.committed is not None and not isinstance(exc, InterruptedAfterCommit):
+                raise InterruptedAfterCommit(self.committed) from None
+            raise
+
+    def _commit(self, names: list[str]) -> list[Path]:
+        with _directory_lock(self.directory), _interrupts_held():
+            for n in names:
+                final = self.directory / n
+                if final.is_dir() and not final.is_symlink():
+                    raise OutputError(
+                        f"@{final}@ is a directory, where this run writes its file {n}; remove or rename it, or choose "
+                        "another output. Nothing was written."
+                    )
+            journal = self.staging / JOURNAL
+            tmp = self.staging / (JOURNAL + ".tmp")
+            tmp.write_text("".join(f"{n}\n" for n in names), encoding="utf-8")
+            _fsync(tmp)
+            os.replace(tmp, journal)
+            _fsync(self.staging, directory=True)
+            try:
+                finals = _move(self.directory, self.staging, names)
+            except BaseException:
+                self.staging = None  # the journal stays, for the next run to finish (module docstring)
+                raise
+            _fsync(self.directory, directory=True)
+            self.committed = finals
+            shutil.rmtree(self.staging, ignore_errors=True)
+            self.staging = None
+        return finals
+
+    def discard(self) -> None:
+        if self.staging is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            self.staging = None
+
+
+def _disk_full(directory: Path, exc: BaseException) -> bool:
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    if "no space left" in str(exc).lower():
+        return True
+    try:
+        st = os.statvfs(directory)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < 64 * 1024
+
+
+def _short(exc: BaseException) -> str:
+    """One line of an error: USD's and OpenVDB's chain several ``Error in '...' at line N ...: 'what'`` lines."""
+    lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
+    if not lines:
+        return type(exc).__name__
+    pick = next((line for line in lines if "space" in line.lower()), lines[-1])
+    m = re.search(r": '(.*)'$", pick)
+    return m.group(1) if m else pick
+
+
 @contextlib.contextmanager
 def atomic_outputs(paths: list[Path]) -> Iterator[dict[Path, Path]]:
-    """Yield {final path: temporary path}; on success rename all into place, else delete the temporaries.
+    """Yield {final path: staged path}; when the block ends without an error, move them all into place together.
 
-    Files are renamed in the order given, so list the files a layer refers to
-    (``.vdb``) before the layer itself.
+    The files must share one directory. They are renamed in the order given,
+    so list the files a layer refers to (``.vdb``) before the layer itself;
+    paths the block did not write are left alone. On an error the staged files
+    are removed and nothing is written.
     """
-    temps = {p: temp_sibling(p) for p in paths}
+    paths = [Path(p) for p in paths]
+    directory = {p.parent for p in paths}
+    if len(directory) != 1:
+        raise ValueError(f"atomic outputs must share one directory, got {sorted(map(str, directory))}")
+    directory = directory.pop()
+    commit = Commit(directory if str(directory) else Path("."), paths[-1].name)
     try:
-        yield temps
-        for final, tmp in temps.items():
-            if tmp.exists():
-                os.replace(tmp, final)
-    except OSError as exc:
-        raise OutputError(f"@{exc.filename or paths[-1]}@: cannot be written ({exc.strerror}); nothing was written.") from None
+        yield {p: commit.path(p.name) for p in paths}
+        commit.commit([p.name for p in paths if commit.path(p.name).exists()])
+    except OutputError:
+        raise
+    except Exception as exc:
+        if commit.staging is not None and _disk_full(commit.staging, exc):
+            raise OutputError(
+                f"@{paths[-1]}@: the disk holding {directory} is full ({_short(exc)}); free some space or choose another "
+                "output path. Nothing was written."
+            ) from None
+        if isinstance(exc, OSError):
+            raise OutputError(
+                f"@{exc.filename or paths[-1]}@: cannot be written ({exc.strerror}); nothing was written."
+            ) from None
+        raise
     finally:
-        for tmp in temps.values():
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()
+        commit.discard()
+
+
+def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
+    """Finish or remove what killed runs left behind for the outputs ``names`` in ``directory``.
+
+    A staging directory (module docstring) whose run is no longer alive is
+    finished if it holds a journal (its result was committed: the remaining
+    renames are done) and removed otherwise; so are the ``.STEM.tmp-PID.EXT``
+    temporaries of earlier versions. Each action is noted in ``warnings``.
+    Runs still alive are left alone.
+    """
+    directory = Path(directory)
+    names = list(names)
+    labels = {staging_label(n) for n in names}
+    stems = "|".join(re.escape(Path(n).stem) for n in names)
+    legacy = re.compile(rf"\.(?:{stems})(?:\.\d\d_[A-Za-z0-9_]+)?\.tmp-(?P<pid>\d+)\.(?:vdb|usda|usdc|usd|png|exr|json|svg|pdf)")
+    try:
+        entries = list(directory.iterdir()) if names else []
+    except OSError:
+        return
+    stale = []
+    for entry in entries:
+        m = _STAGING.fullmatch(entry.name)
+        if m and m["label"] in labels and entry.is_dir():
+            if not _owner_alive(entry, int(m["pid"])):
+                stale.append((entry, int(m["pid"])))
+        elif legacy.fullmatch(entry.name) and entry.is_file():
+            pid = int(legacy.fullmatch(entry.name)["pid"])
+            if not _alive(pid):
+                stale.append((entry, pid))
+    if not stale:
+        return
+    with _directory_lock(directory), _interrupts_held():
+        for entry, pid in stale:
+            if not entry.exists():  # another run cleaned it meanwhile
+                continue
+            if entry.is_file():
+                entry.unlink(missing_ok=True)
+                warnings.append(f"removed @{entry}@, a temporary file left by an interrupted run (process {pid}).")
+                continue
+            journal = entry / JOURNAL
+            if journal.is_file():
+                todo = [n for n in journal.read_text(encoding="utf-8").split("\n") if n and (entry / n).is_file()]
+                try:
+                    for n in todo:
+                        os.replace(entry / n, directory / n)
+                except OSError as exc:
+                    warnings.append(f"could not finish the interrupted write in @{entry}@ ({exc.strerror}); "
+                                    "remove it by hand once the cause is fixed.")
+                    continue
+                if todo:
+                    warnings.append(
+                        f"finished the write of an interrupted run (process {pid}): moved {', '.join(todo)} from @{entry}@ "
+                        f"into {directory}, so its result there is whole again."
+                    )
+            else:
+                warnings.append(f"removed @{entry}@, the unfinished work of an interrupted run (process {pid}).")
+            shutil.rmtree(entry, ignore_errors=True)
+
+
+def pending_commits(directory: Path) -> list[tuple[Path, list[str]]]:
+    """Staging directories in ``directory`` that hold a journal: commits a killed run did not finish, and their names."""
+    out = []
+    try:
+        entries = list(Path(directory).iterdir())
+    except OSError:
+        return out
+    for entry in entries:
+        if _STAGING.fullmatch(entry.name) and (entry / JOURNAL).is_file():
+            try:
+                names = [n for n in (entry / JOURNAL).read_text(encoding="utf-8").split("\n") if n]
+            except OSError:
+                continue
+            out.append((entry, names))
+    return out

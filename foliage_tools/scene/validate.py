@@ -15,6 +15,7 @@ import numpy as np
 
 from foliage_tools.errors import InputError
 from foliage_tools.geometry.leaves import DEGENERATE_AREA, triangle_area_normals, triangulate
+from foliage_tools.scene.integrity import check_layers, pending_for, record_of
 from foliage_tools.scene.read import classify_leaf, open_stage
 from foliage_tools.scene.schemas import register
 from foliage_tools.scene.vdb import grid_names, read_grid
@@ -202,6 +203,24 @@ def _volume_grids(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         grid = read_grid(Path(resolved), name)
         if not np.all(np.isfinite(grid.values)):
             yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: grid {name!r} in @{ap.path}@ holds NaN or infinite values.", str(prim.GetPath()))
+
+
+@rule("bake-files-match", "Each bake layer's grid files and upstream layers are the ones it was written with (content hashes in its customLayerData).")
+def _bake_files_match(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    layers = [Path(layer.realPath) for layer in stage.GetUsedLayers() if layer.realPath]
+    for message in check_layers(layers):
+        yield Finding(ERROR, "bake-files-match", message)
+    waiting: dict[Path, list[str]] = {}
+    for layer in sorted(set(layers)):
+        staging = pending_for(layer) if record_of(layer) is not None else None
+        if staging is not None:
+            waiting.setdefault(staging, []).append(layer.name)
+    for staging, names in waiting.items():
+        yield Finding(
+            WARNING, "bake-files-match",
+            f"@{staging}@ holds newer versions of {', '.join(names)} from a run that was killed while moving them into "
+            "place; the next foliage run writing the same output finishes the move (or remove that directory).",
+        )
 
 
 @rule("leaf-optics-attributes", "foliage:leaf:reflectance / transmittance are reserved and not read yet (the bake's --leaf-optics applies).")

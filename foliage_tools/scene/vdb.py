@@ -74,6 +74,14 @@ def write_vdb(path: Path, grids: list[Grid], *, metadata: dict | None = None) ->
     _vdb.write(str(path), grids=[to_vdb(g) for g in grids], metadata=dict(metadata or {}))
 
 
+def file_metadata(path: Path) -> dict:
+    """The file-level metadata of a ``.vdb`` (``write_vdb``'s ``metadata``); empty if it cannot be read."""
+    try:
+        return dict(_vdb.readMetadata(str(path)))
+    except Exception:  # pyopenvdb raises assorted types for corrupt files; the grid readers report those
+        return {}
+
+
 def grid_names(path: Path) -> list[str]:
     """Names of the grids in a ``.vdb`` file; :class:`InputError` if it is missing or unreadable."""
     path = Path(path)

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools.errors import OutputError
-from foliage_tools.scene.atomic import atomic_outputs, check_writable
+from foliage_tools.scene.atomic import atomic_outputs, check_name_fits, check_writable, recover
+from foliage_tools.scene.integrity import locator, new_commit_id, seal, utc_now
 from foliage_tools.scene.schemas import LIGHTING_API, register
 from foliage_tools.scene.vdb import Grid, write_vdb
 
@@ -101,8 +102,9 @@ def _input_files(path: Path, _mtime: int) -> frozenset[Path]:
     return frozenset(files)
 
 
-def check_output_path(input_path: Path, out: Path, extra_outputs=(), *, writes_grids: bool = True) -> None:
-    """Refuse outputs that would destroy the input or cannot be written.
+def check_output_path(input_path: Path, out: Path, extra_outputs=(), *, writes_grids: bool = True,
+                      warnings: list[str] | None = None) -> None:
+    """Refuse outputs that would destroy the input or cannot be written; tidy up after killed runs on this output.
 
     The input is every file its stage reads, not only the named layer: writing
     over a sublayer (``foliage spp a.lb.usda -o a.density.usda``, where
@@ -112,9 +114,14 @@ def check_output_path(input_path: Path, out: Path, extra_outputs=(), *, writes_g
     input uses that is named like this output's grids (``OUT.vdb``,
     ``OUT.NN_name.vdb``) is refused when ``writes_grids`` (the stage will write
     grids whose names are not known yet).
+
+    With ``warnings``, what killed runs left for this output is finished or
+    removed (``atomic.recover``) and noted there.
     """
     if out.suffix not in USD_EXTENSIONS:
         raise OutputError(f"@{out}@: the output must be a USD layer ({', '.join(USD_EXTENSIONS)}).")
+    if out.parent.is_dir():
+        check_name_fits(out)
     if out.resolve() == Path(input_path).resolve():
         raise OutputError(f"@{out}@ is the input file; choose another output (inputs are never modified).")
     used = input_files(input_path)
@@ -131,6 +138,8 @@ def check_output_path(input_path: Path, out: Path, extra_outputs=(), *, writes_g
                 "grids); writing it would change the input. Choose another output path (inputs are never modified)."
             )
     check_writable(out)
+    if warnings is not None:
+        recover(out.parent, [out.name], warnings)
 
 
 def _relative(target: Path, start_dir: Path) -> str:
@@ -144,27 +153,41 @@ def _set_attr(prim: Usd.Prim, name: str, value, type_name: str) -> None:
 
 
 def write_layer(input_path: Path, out: Path, edits: LayerEdits, *, input_stage_meta: dict) -> list[Path]:
-    """Write the output layer and its grid files atomically; return the paths written."""
+    """Write the output layer and its grid files as one result (``atomic``); return the paths written.
+
+    The layer records the content hash of each grid file and of its input
+    when that is a foliage layer itself (``integrity``), so a layer and a
+    grid from different runs are refused by ``validate`` and by later stages.
+    """
     input_path = Path(input_path)
     out = Path(out)
     vdb_files = [v.vdb_file for v in edits.volumes]
     check_output_path(input_path, out, vdb_files, writes_grids=False)  # the exact grid files, no prediction
     if len(set(vdb_files)) != len(vdb_files):
         raise ValueError("each volume needs its own .vdb file")
+    for f in vdb_files:
+        check_name_fits(f)
     with atomic_outputs([*vdb_files, out]) as temps:
+        commit = new_commit_id()
+        meta = {"creator": "foliage-tools", "foliage:commit": commit, "foliage:written": utc_now()}  # integrity.written
         for vol in edits.volumes:
-            write_vdb(temps[vol.vdb_file], list(vol.grids), metadata={"creator": "foliage-tools"})
+            write_vdb(temps[vol.vdb_file], list(vol.grids), metadata=meta)
         tmp = temps[out]
         layer = Sdf.Layer.CreateNew(str(tmp))
         if layer is None:  # pragma: no cover - CreateNew raises on failure in practice
             raise OutputError(f"@{out}@: cannot create the layer.")
-        layer.subLayerPaths.append(_relative(input_path, out.parent))
+        # composed from the staging directory while authoring (so overs land on the input's prims as before);
+        # the path written is the one relative to the layer's final place
+        layer.subLayerPaths.append(_relative(input_path, tmp.parent))
         for key in ("upAxis", "metersPerUnit", "defaultPrim"):
             if input_stage_meta.get(key) is not None:
                 layer.pseudoRoot.SetInfo(key, input_stage_meta[key])
         stage = Usd.Stage.Open(layer)
         stage.SetEditTarget(Usd.EditTarget(layer))
         _author(stage, edits, out)
+        del stage
+        layer.subLayerPaths[0] = _relative(input_path, out.parent)
+        seal(layer, locator(tmp.parent, out.parent), commit)
         layer.Save()
     return [*vdb_files, out]
 
@@ -227,3 +250,50 @@ def stage_metadata(stage_path: Path) -> dict:
         if layer is not None and layer.pseudoRoot.HasInfo(key):
             meta[key] = layer.pseudoRoot.GetInfo(key)
     return meta
+
+
+def relocate_and_seal(staging: Path, final_dir: Path, names: list[str]) -> list[str]:
+    """Make layers written in ``staging`` right for ``final_dir``, where they will be moved; their names, bottom layer first.
+
+    A relative asset path that leads out of ``staging`` (the input a bake's
+    first layer sublayers) is rewritten relative to ``final_dir``; paths to
+    files beside it stay. Then each layer records the files below it again
+    (``integrity.seal``), in sublayer order, so every record holds the final
+    content of the layer it names.
+    """
+    from pxr import UsdUtils
+
+    staging = Path(staging).resolve()
+    layers = {}
+    for n in names:
+        # a private copy of what is on disk: editing the registry's layer would make the stages this process
+        # still holds over it recompose (and miss the input, whose path is now right for final_dir only)
+        layers[n] = Sdf.Layer.OpenAsAnonymous(str(staging / n))
+
+    def rewrite(asset: str) -> str:
+        if not asset.startswith(("./", "../")):
+            return asset  # absolute, a URI or a search path: the same from anywhere
+        target = Path(os.path.normpath(staging / asset))
+        return asset if target.parent == staging else _relative(target, final_dir)
+
+    order: list[str] = []
+
+    def visit(n: str, trail: tuple[str, ...] = ()) -> None:
+        if n in order or n in trail:
+            return
+        for sub in layers[n].subLayerPaths:
+            dep = os.path.normpath(sub)
+            if dep in layers:
+                visit(dep, trail + (n,))
+        order.append(n)
+
+    for n in sorted(layers):
+        visit(n)
+    commit = new_commit_id()
+    for n in order:
+        layer = layers[n]
+        UsdUtils.ModifyAssetPaths(layer, rewrite)
+        seal(layer, locator(staging, final_dir), commit)
+        if not layer.Export(str(staging / n)):
+            raise OutputError(f"@{final_dir / n}@: cannot be written.")
+    return order

@@ -80,16 +80,24 @@ def test_bake_with_bad_input_or_an_unwritable_place_exits_2_and_creates_nothing(
     assert r.returncode == 2 and "/proc" in r.stderr, r.stderr
 
 
-def test_bake_stages_in_outdir_itself_when_its_parent_is_not_writable(tmp_path, monkeypatch):
-    import tempfile
-
-    def refuse(*args, **kwargs):  # root may write anywhere here: simulate a read-only parent
-        raise PermissionError(13, "Permission denied")
+def test_bake_stages_inside_outdir_and_writes_nothing_beside_it(tmp_path, monkeypatch):
+    # Staging beside OUTDIR made a bake onto a mount point fail at the end ("Invalid cross-device link") and
+    # needed a writable parent. Every rename now happens inside OUTDIR: the parent never sees a file.
+    from foliage_tools.scene import atomic
 
     out = tmp_path / "out"
     out.mkdir()
-    monkeypatch.setattr(tempfile, "mkdtemp", refuse)
+    (out / "notes.txt").write_text("keep me")
+    seen = []
+
+    def watch(index, staged, final):
+        seen.append((staged.parent.parent, final.parent, sorted(p.name for p in tmp_path.iterdir())))
+
+    monkeypatch.setattr(atomic, "before_rename", watch)
     report = run_bake(EXAMPLE, out, BakeParams(optics=parse_leaf_optics(None), resolution=8))
-    assert Path(report.stats["result"]) == out / "tree_small.lb.usda" and (out / "tree_small.lb.usda").exists()
-    assert any("not writable" in w for w in report.warnings)
+    assert Path(report.stats["result"]) == out / "tree_small.lb.usda"
+    assert len(seen) == 8  # the bake's 8 files, in one commit
+    assert all(stage_dir == out and final_dir == out and beside == ["out"] for stage_dir, final_dir, beside in seen)
+    assert sorted(p.name for p in out.iterdir()) == sorted(["notes.txt", *(
+        f"tree_small.{n}" for n in ("density.usda", "density.vdb", "smax.usda", "spp.usda", "spp.vdb", "lb.usda", "lb.vdb", "png"))])
     assert foliage("validate", out / "tree_small.lb.usda").returncode == 0
