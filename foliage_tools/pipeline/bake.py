@@ -135,11 +135,20 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) 
     stages["lb"] = _stage(
         "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct), progress=progress
     )
-    # a picture of the bake: direct light beside direct + LB indirect, same exposure
+    # a picture of the bake: direct light beside direct + each method's indirect, same exposure; per-leaf
+    # primvars exist only on editable prototypes (a forest of native instances has none: direct light only)
+    from foliage_tools.scene.read import read_scene
+
+    editable = any(p.editable and p.leaves.count for p in read_scene(path)[0].prototypes)
     stages["preview"] = _stage(
         "preview", run_preview, lb_out, work / f"{stem}.png",
-        PreviewParams(compare=("direct", "lb", "spp", "smax"), size=(512, 512), sun=params.sun), progress=progress,
+        PreviewParams(compare=("direct", "lb", "spp", "smax") if editable else ("direct",), size=(512, 512), sun=params.sun),
+        progress=progress,
     )
+    if not editable:
+        stages["preview"].warnings.append(
+            "every prototype is a native instance, so no leaf mesh holds the bakes' per-leaf primvars: the preview shows "
+            "the direct light only (the per-instance means are on the instances; make the prototypes editable for more).")
     if params.with_reference:
         from foliage_tools.bench.plot import write_plot
         from foliage_tools.pipeline.bench import BenchParams, run_bench

@@ -27,6 +27,24 @@ def test_bake_chains_stages_and_the_last_layer_holds_everything(tmp_path):
     assert foliage("validate", final).returncode == 0
 
 
+def test_bake_of_a_forest_of_native_instances_writes_everything_and_the_per_instance_light(tmp_path):
+    from pxr import Usd, UsdGeom
+
+    forest = EXAMPLE.with_name("forest_small.usda")
+    report = run_bake(forest, tmp_path / "out", BakeParams(optics=parse_leaf_optics(None), resolution=12))
+    final = Path(report.stats["result"])
+    # its prototypes are native instances: no per-leaf primvars, so the preview shows the direct light only, and says so
+    assert (tmp_path / "out" / "forest_small.png").stat().st_size > 1000
+    assert any("preview: every prototype is a native instance" in w for w in report.warnings)
+    stage = Usd.Stage.Open(str(final))
+    grove = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Grove"))
+    for m in ("smax", "spp", "lb"):
+        d = grove.GetPrimvar(f"foliage:{m}:instanceDirect").Get()
+        assert len(d) == 12 and min(v[0] for v in d) > 0, m
+        assert stage.GetPrimAtPath("/World/Trees/Tree_00").GetAttribute(f"foliage:{m}:instanceScattered").Get()[1] > 0, m
+    assert foliage("validate", final).returncode == 0
+
+
 def test_bake_into_a_file_path_is_refused(tmp_path):
     f = tmp_path / "file"
     f.write_text("x")
