@@ -88,11 +88,18 @@ def instance_edits(scene: Scene, method: str, values: dict[str, np.ndarray]) -> 
     return primvars, attrs
 
 
-def bake_instance_edits(scene: Scene, method: str, world: World, e_direct: np.ndarray, e_scattered: np.ndarray
-                        ) -> tuple[list[PrimvarEdit], list[AttributeEdit]]:
-    """The per-instance means of a bake's per-global-leaf E_direct ((L,) or (L, 3)) and E_scattered ((L, 3))."""
+def bake_instance_edits(scene: Scene, method: str, world: World, e_direct: np.ndarray, e_scattered: np.ndarray,
+                        scale: np.ndarray | None = None) -> tuple[list[PrimvarEdit], list[AttributeEdit]]:
+    """The per-instance means of a bake's per-global-leaf E_direct ((L,) or (L, 3)) and E_scattered ((L, 3)).
+
+    ``scale`` (N, 3), the forest lattice's factors (pipeline.forest), multiplies the scattered means of a
+    method that lit each prototype alone, and is written too (``instanceScale``).
+    """
     d = np.asarray(e_direct, dtype=np.float64)
     if d.ndim == 1:
         d = np.repeat(d[:, None], 3, axis=1)
-    return instance_edits(scene, method, {"instanceDirect": instance_means(world, d),
-                                          "instanceScattered": instance_means(world, e_scattered)})
+    values = {"instanceDirect": instance_means(world, d), "instanceScattered": instance_means(world, e_scattered)}
+    if scale is not None:
+        values["instanceScattered"] = values["instanceScattered"] * scale
+        values["instanceScale"] = np.asarray(scale, dtype=np.float64)
+    return instance_edits(scene, method, values)

@@ -335,7 +335,13 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
     world = exact.world if exact else (gathered.world if gathered else assemble(scene))
     direct_all = exact.result.e_direct if exact else from_prototypes(world, {b.index: b.e_direct for b in bakes})
     scattered_all = gathered.result.e_scattered if gathered else from_prototypes(world, {b.index: b.e_scattered for b in bakes})
-    pv, at = bake_instance_edits(scene, "lb", world, direct_all, scattered_all)
+    forest = None
+    if len(scene.instances) > 1 and gathered is None:  # the neighbours' scattered light (a gather has it already)
+        from foliage_tools.pipeline.forest import forest_light
+
+        progress.step("forest lattice: the stand's scattered light per instance")
+        forest = forest_light(scene, sun, params.optics, world)
+    pv, at = bake_instance_edits(scene, "lb", world, direct_all, scattered_all, scale=forest.factors if forest else None)
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")
@@ -348,5 +354,6 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         "optics": params.optics.as_dict(), "absorption_scale": params.absorption_scale, "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
         "gather": gathered.stats() if gathered is not None else None,
+        "forest": forest.stats() if forest is not None else None,
     }
     return report.finish()

@@ -16,6 +16,7 @@ from foliage_tools import __version__
 from foliage_tools.geometry.sun import Sun, to_prototype_space
 from foliage_tools.lighting import boulanger, envelope
 from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
 from foliage_tools.pipeline.world import assemble
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
@@ -139,10 +140,14 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
             }
         )
     world = exact.world if exact else assemble(scene)
+    forest = None
+    if len(scene.instances) > 1:  # the neighbours' scattered light, which the lone prototype's bake lacks
+        progress.step("forest lattice: the stand's scattered light per instance")
+        forest = forest_light(scene, sun, params.optics, world)
     pv, at = bake_instance_edits(
         scene, "smax", world,
         exact.result.e_direct if exact else from_prototypes(world, {b.index: b.lighting.e_direct for b in bakes}),
-        from_prototypes(world, {b.index: b.lighting.e_scattered for b in bakes}))
+        from_prototypes(world, {b.index: b.lighting.e_scattered for b in bakes}), scale=forest.factors if forest else None)
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")
@@ -156,5 +161,6 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
         "version": __version__,
         "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
+        "forest": forest.stats() if forest is not None else None,
     }
     return report.finish()

@@ -58,6 +58,7 @@ from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, density_for_bake, vdb_path, volume_path
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.gather import bake_gather, check_gather
+from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
 from foliage_tools.pipeline.world import assemble
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
@@ -395,10 +396,15 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         })
     world = exact.world if exact else (gathered.world if gathered else assemble(scene))
     best_of = {b.index: getattr(b.result, best_name) for b in bakes}
+    forest = None
+    if len(scene.instances) > 1 and gathered is None:  # eq. 31 shades by the neighbours; this adds their scattered light
+        progress.step("forest lattice: the stand's scattered light per instance")
+        forest = forest_light(scene, sun, params.optics, world)
     pv, at = bake_instance_edits(
         scene, "spp", world,
         exact.result.e_direct if exact else from_prototypes(world, {i: r.direct for i, r in best_of.items()}),
-        gathered.result.e_scattered if gathered else from_prototypes(world, {i: r.scattered for i, r in best_of.items()}))
+        gathered.result.e_scattered if gathered else from_prototypes(world, {i: r.scattered for i, r in best_of.items()}),
+        scale=forest.factors if forest else None)
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")
@@ -411,5 +417,6 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         "optics": params.optics.as_dict(), "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
         "gather": {**gathered.stats(), "on": best_name} if gathered is not None else None,
+        "forest": forest.stats() if forest is not None else None,
     }
     return report.finish()

@@ -62,4 +62,11 @@ def test_instance_means_land_on_the_instancer_and_the_native_instances(tmp_path)
     # the trees stand apart but not alone: their direct light differs from instance to instance
     vals = np.array(list(means.values()))
     assert vals.std() > 0.003 * vals.mean()
+    # the forest lattice's factor (pipeline.forest) scales the lone prototype's scattered light per instance:
+    # these trees stand apart (no crowns touch), so their neighbours add a little, never take light away
+    scale = np.asarray(pv.GetPrimvar("foliage:smax:instanceScale").Get(), dtype=np.float64)
+    assert scale.shape == (12, 3) and np.all(scale[4] == 0)
+    assert np.all((scale[visible] > 1.0) & (scale[visible] < 1.3)), scale[visible]
+    ratio = grove_s[visible] / scale[visible]  # the prototype's mean scattered light: the same for every instance
+    np.testing.assert_allclose(ratio, np.broadcast_to(ratio[0], ratio.shape), rtol=1e-5)
     assert foliage("validate", tmp_path / "f.smax.usda").returncode == 0

@@ -7,9 +7,10 @@ Carlo reference, which traces every instance, is the truth. The exact direct lig
 every instance) puts each tree in its place in the stand; the volume methods' scattered light is the
 prototype's, lit alone, unless a final gather (through every instance's leaves) replaces it.
 
-Measured (seed 3 stand, 2M reference paths): every instance's total within 1.7 % (lb --gather 128) and
-6.8 % (smax) of the reference; the centre tree's total / the tree alone 0.959 (lb) and 0.928 (smax) against
-the reference's 0.967; its scattered light +25 % (lb --gather) and +4 % (smax) against +30 %.
+Without a gather, the forest lattice (pipeline.forest, steele2010 3.2) scales each instance's scattered light.
+Measured (seed 3 stand, 2M reference paths) before the forest lattice: every instance's total within 1.7 %
+(lb --gather 128) and 6.8 % (smax) of the reference; the centre tree's scattered light +25 % (gather) and +4 %
+(smax) over the tree alone, against the reference's +30 %.
 The fixture takes ~90 s (the reference and the gather over 37 500 leaves): slow.
 """
 
@@ -73,6 +74,7 @@ def stand(tmp_path_factory):
         run_reference(scene, d / f"{name}.ref.usda", ReferenceParams(optics=optics, sun=SUN, paths=paths, seed=5))
         run_lb(scene, d / f"{name}.lb.usda", LBBakeParams(optics=optics, sun=SUN, resolution=32, gather=128, direct=DIRECT))
         run_smax(scene, d / f"{name}.smax.usda", SmaxParams(optics=optics, sun=SUN, direct=DIRECT))
+        run_lb(scene, d / f"{name}.lbf.usda", LBBakeParams(optics=optics, sun=SUN, resolution=32, direct=DIRECT))
 
         out[name] = d
     return d
@@ -102,17 +104,34 @@ def test_the_centre_tree_is_darker_than_the_same_tree_alone_by_the_references_fa
         assert factor == pytest.approx(mc, rel=0.10), (method, factor, mc)
 
 
-def test_the_gather_sees_the_light_the_neighbours_scatter(stand):
-    # the centre tree gets more scattered light in the stand than alone (its neighbours' lit leaves);
-    # the gather traces every instance's leaves, so its first bounce has it, while s_max (the lone prototype)
-    # has none of it
+def test_the_neighbours_scattered_light_reaches_the_centre_tree(stand):
+    # The centre tree gets more scattered light in the stand than alone (its neighbours' lit leaves). The
+    # gather traces every instance's leaves, so its first bounce has it; without a gather, the forest lattice
+    # (pipeline.forest) scales the lone prototype's scattered light per instance.
     _, rs = _instance_values(stand / "stand.ref.usda", "ref")
     _, as_ = _tree_values(stand / "alone.ref.usda", "ref")
     mc_gain = rs[CENTRE, 1] / as_[1]
-    _, ls = _instance_values(stand / "stand.lb.usda", "lb")
-    _, lsa = _tree_values(stand / "alone.lb.usda", "lb")
-    _, ss = _instance_values(stand / "stand.smax.usda", "smax")
-    _, ssa = _tree_values(stand / "alone.smax.usda", "smax")
-    assert mc_gain > 1.05
-    assert ls[CENTRE, 1] / lsa[1] == pytest.approx(mc_gain, rel=0.10)
-    assert abs(ss[CENTRE, 1] / ssa[1] - mc_gain) > 2 * abs(ls[CENTRE, 1] / lsa[1] - mc_gain)
+    assert mc_gain > 1.1  # measured 1.30: a stand effect to reproduce, not noise
+    for method, layer in (("lb", "lb"), ("lb", "lbf"), ("smax", "smax")):
+        _, s = _instance_values(stand / f"stand.{layer}.usda", method)
+        _, sa = _tree_values(stand / f"alone.{layer}.usda", method)
+        # 10 %: the issue's bound for the stand effect (measured: gather 1.25, forest lattice on lb 1.31 and on
+        # smax 1.35, each instance's lattice factor within 2.6 % of the reference's)
+        assert s[CENTRE, 1] / sa[1] == pytest.approx(mc_gain, rel=0.10), (layer, s[CENTRE, 1] / sa[1], mc_gain)
+
+
+def test_the_forest_lattice_factor_is_written_per_instance_and_follows_the_reference(stand):
+    from pxr import UsdGeom
+
+    _, rs = _instance_values(stand / "stand.ref.usda", "ref")
+    _, as_ = _tree_values(stand / "alone.ref.usda", "ref")
+    mc = rs[:, 1] / as_[1]
+    stage = open_stage(stand / "stand.lbf.usda")  # keep the stage alive while its prims are used
+    pv = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Grove"))
+    scale = np.asarray(pv.GetPrimvar("foliage:lb:instanceScale").Get(), dtype=np.float64)
+    assert scale.shape == (SIDE * SIDE, 3)
+    # per instance within 6 %: the reference's factor carries its own noise (~1-2 % per instance at 2M paths)
+    np.testing.assert_allclose(scale[:, 1], mc, rtol=0.06)
+    # the gathered bake needs no factor: it traced the neighbours itself
+    gathered = open_stage(stand / "stand.lb.usda")
+    assert not UsdGeom.PrimvarsAPI(gathered.GetPrimAtPath("/World/Grove")).GetPrimvar("foliage:lb:instanceScale")
