@@ -37,6 +37,9 @@ class MethodOutput:
     e_direct: dict[int, np.ndarray]
     e_scattered: dict[int, np.ndarray]
     stats: dict = field(default_factory=dict)
+    scattered_per_instance_leaf: np.ndarray | None = None
+    """(L_world, 3) E_scattered of every leaf of every instance, for a method that traced them all (the
+    gathers); None: the prototype's values serve every instance (and the forest lattice scales them)."""
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,8 @@ from foliage_tools.bench.registry import BenchContext, methods
 from foliage_tools.errors import UsageError
 from foliage_tools.geometry.rays import RayScene, count_crossings
 from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.forest import forest_light
+from foliage_tools.pipeline.instances import instance_means
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.reference import ReferenceParams, bake_reference, noise_warnings, unlit_warnings, unmeasured
 from foliage_tools.pipeline.report import Progress, Report, Silent
@@ -87,6 +89,14 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
     exact = bake_direct(scene, sun, DirectChoice(samples=params.direct_samples), progress, world=world)
     direct_seconds = time.perf_counter() - t0
     exact_direct = np.repeat(exact.result.e_direct[:, None], 3, axis=1)  # per global leaf
+    # a forest: each instance's mean light against the reference's, the volume methods' scattered light scaled by
+    # the forest lattice as the bakes write it (pipeline.instances, pipeline.forest)
+    forest = None
+    if len(scene.instances) > 1:
+        progress.step("forest lattice: the stand's scattered light per instance")
+        forest = forest_light(scene, sun, params.optics, world)
+        ref_instances = instance_means(world, ref_total)
+        direct_instances = instance_means(world, exact_direct)
 
     rows = []
     progress.step(f"running {sum(m.available for m in selected)} method(s)", total=len(selected))
@@ -102,6 +112,8 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
         out = m.run(ctx)
         seconds_volume = time.perf_counter() - t
         scat = _per_global_leaf(world, out.e_scattered, n)
+        if out.scattered_per_instance_leaf is not None:
+            scat = np.asarray(out.scattered_per_instance_leaf, dtype=np.float64)
         own = _per_global_leaf(world, out.e_direct, n)
         errors = {
             "rel_rms_scattered": rel_rms(scat, res.e_scattered),
@@ -116,6 +128,12 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
             "rel_rms_total_volume": rel_rms(own + scat, ref_total),
             "binned_rms_total_volume": binned_rms(own + scat, ref_total, depth, thickness),
         }
+        if forest is not None:
+            inst_scat = instance_means(world, scat)
+            if out.scattered_per_instance_leaf is None:
+                inst_scat = inst_scat * forest.factors
+            # over instances: each instance's mean total (exact direct + scattered) against the reference's
+            errors["instance_rel_rms_total"] = rel_rms(direct_instances + inst_scat, ref_instances)
         seconds = seconds_volume + direct_seconds
         for key, value in errors.items():
             if not np.isfinite(value):  # the reference is all zero there: a relative error is undefined
@@ -154,6 +172,8 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
             "noise_rel_direct": float(res.noise_rel_direct), "noise_target": params.noise,
         },
         "direct": {**exact.stats(), "seconds": direct_seconds, "rel_rms_direct": rel_rms(exact_direct, res.e_direct)},
+        "instances": len(scene.instances),
+        "forest": forest.stats() if forest is not None else None,
         "methods": rows,
         "binned_rms_definition": "sqrt(sum_b (<x>_b - <ref>_b)^2 / sum_b <ref>_b^2) over 8x8 quantile classes of "
                                  "(crossings toward the sun, total crossings) — shinya2013 eq. (30) read with the square outside; "

@@ -18,7 +18,8 @@ def run_lb(ctx: BenchContext) -> MethodOutput:
                                                      resolution=LB_RESOLUTION), ctx.warnings, Silent())
     g = bake_gather(ctx.scene, ctx.sun, ctx.optics, {b.index: b.e_scattered for b in bakes}, RAYS, Silent())
     return MethodOutput(e_direct={b.index: b.e_direct for b in bakes},
-                        e_scattered={b.index: g.per_prototype[b.index] for b in bakes}, stats=g.stats())
+                        e_scattered={b.index: g.per_prototype[b.index] for b in bakes}, stats=g.stats(),
+                        scattered_per_instance_leaf=g.result.e_scattered)
 
 
 @register("spp+gather", f"final gather ({RAYS} rays per leaf) on SPPG: exact first bounce, SPPG for the rest")
@@ -27,4 +28,5 @@ def run_spp(ctx: BenchContext) -> MethodOutput:
                      ctx.warnings, Silent())
     g = bake_gather(ctx.scene, ctx.sun, ctx.optics, {b.index: b.result.sppg.scattered for b in bakes}, RAYS, Silent())
     return MethodOutput(e_direct={b.index: b.result.sppg.direct for b in bakes},
-                        e_scattered={b.index: g.per_prototype[b.index] for b in bakes}, stats=g.stats())
+                        e_scattered={b.index: g.per_prototype[b.index] for b in bakes}, stats=g.stats(),
+                        scattered_per_instance_leaf=g.result.e_scattered)
