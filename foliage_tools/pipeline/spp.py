@@ -324,6 +324,11 @@ def depth_path(scene: Scene, depth: str, direct_mode: str = "rays") -> str:
     return "rays" if leaves <= AUTO_RAYS_MAX_LEAVES else "grid"
 
 
+#: Above this many instances eq. (31)'s neighbour depths are skipped (with a warning): they cost every instance
+#: against every other, 3.3-3.7 ms a pair measured (issue #16), so 100 instances take ~35 s and 1 000 an hour.
+EQ31_MAX_INSTANCES = 100
+
+
 def resolve_depth(scene: Scene, params: SppParams) -> SppParams:
     """``params`` with ``depth`` made concrete for this scene (:func:`depth_path`)."""
     return replace(params, depth=depth_path(scene, params.depth, params.direct.mode))
@@ -334,7 +339,15 @@ def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], pro
     baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
     progress.step(f"SPP/SPPG for {len(baked)} prototype(s), {params.depth} depths", total=len(baked))
     densities = {i: density_for_bake(scene.path, p, DensityParams(resolution=params.resolution, method="area"), warnings) for i, p in baked}
-    neighbours = _Neighbours(scene, densities, params, warnings) if len(scene.instances) > 1 else None
+    neighbours = None
+    if 1 < len(scene.instances) <= EQ31_MAX_INSTANCES:
+        neighbours = _Neighbours(scene, densities, params, warnings)
+    elif len(scene.instances) > EQ31_MAX_INSTANCES:
+        warnings.append(
+            f"{len(scene.instances):,} instances: the neighbour depths of shinya2013 eq. (31) are left out above "
+            f"{EQ31_MAX_INSTANCES} (every instance against every other, ~3.5 ms a pair: "
+            f"{len(scene.instances) ** 2 * 3.5e-3 / 60:,.0f} min here). Each instance's direct light still sees its "
+            "neighbours (--direct rays), and the forest lattice scales its scattered light.")
     out = []
     for i, proto in baked:
         out.append(bake_prototype(proto, i, scene, sun, densities[i], neighbours, params))

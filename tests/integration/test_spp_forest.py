@@ -144,3 +144,16 @@ def test_a_neighbour_of_another_prototype_shadows_like_the_same_prototype(tree):
     for k in (0, 1):
         np.testing.assert_allclose(bakes[k].result.spp.direct, same.instance_results[k].spp.direct, rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(bakes[k].result.sppg.sky_scattered, same.instance_results[k].sppg.sky_scattered, rtol=1e-12, atol=1e-15)
+
+
+def test_above_the_instance_limit_eq31_is_skipped_with_a_warning(monkeypatch):
+    # the O(instances^2) neighbour depths stop at spp.EQ31_MAX_INSTANCES; below the forest's 16 here
+    import foliage_tools.pipeline.spp as spp_mod
+
+    monkeypatch.setattr(spp_mod, "EQ31_MAX_INSTANCES", 10)
+    _, scene, sun = begin_bake("spp", FOREST, None, None, Silent())
+    warnings: list[str] = []
+    (b,) = spp_mod.bake_spp(scene, sun, SppParams(optics=parse_leaf_optics(None), resolution=16, depth="grid", directions=4),
+                            warnings, Silent())
+    assert b.instances == 16 and b.neighbours == 0
+    assert any("eq. (31) are left out above 10" in w for w in warnings), warnings
