@@ -48,6 +48,15 @@ REFERENCE_PATHS_PER_S = 2.0e6
 #: Exact direct sunlight (--direct rays): shadow rays per second on 2 threads, BVH build included
 #: (bench_direct.py, generated lobed trees).
 DIRECT_RAYS_PER_S = 1.2e6
+#: The shadow rays and the reference copy every instance's triangles into one ray scene: peak resident memory
+#: ~380 MB + 760 B per world triangle (`foliage reference --paths 200000` on tree_small alone and on a 10 x 10
+#: stand of it, 5 268 -> 526 800 triangles: 384 -> 781 MB; 2026-12-02).
+WORLD_BASE_BYTES, WORLD_BYTES_PER_TRIANGLE = 3.8e8, 760.0
+#: The forest lattice (pipeline.forest), seconds per node of the stand's grid, both solves and the exact first
+#: order (10 x 10 stand of tree_small, 155 x 155 x 18 nodes: 28 s on the loaded 2-core host, 2026-12-02).
+FOREST_S_PER_NODE = 6.5e-5
+#: shinya2013 eq. (31) neighbour depths: seconds per instance pair (issue #16: 3.3-3.7 ms).
+SPP_EQ31_S_PER_PAIR = 3.5e-3
 
 
 def available_memory() -> float:
@@ -80,6 +89,25 @@ class PlanParams:
             raise UsageError(f"--depth must be one of {', '.join(DEPTH_PATHS)}, got {self.depth!r}.")
         if self.rays_per_leaf < 1 or self.directions < 1 or self.reference_paths < 1:
             raise UsageError("--rays-per-leaf, --directions and --reference-paths must be >= 1.")
+
+
+def _forest_nodes(scene, cells_per_crown: int, max_nodes: int) -> int:
+    """Nodes of the forest lattice's stand grid (pipeline.forest): the instances' leaf-centre bounds at
+    ``cells_per_crown`` cells across the largest prototype, capped at ``max_nodes``."""
+    baked = [p for p in scene.prototypes if p.leaves.count]
+    crown = max(float(np.ptp(p.leaves.centers, axis=0).max()) for p in baked)
+    voxel = max(crown, 1e-9) / cells_per_crown
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    boxes = {i: (p.leaves.centers.min(axis=0), p.leaves.centers.max(axis=0)) for i, p in enumerate(scene.prototypes) if p.leaves.count}
+    for inst in scene.instances:
+        if inst.prototype not in boxes:
+            continue
+        a, b = boxes[inst.prototype]
+        corners = np.array([[x, y, z] for x in (a[0], b[0]) for y in (a[1], b[1]) for z in (a[2], b[2])])
+        w = corners @ inst.transform[:3, :3].T + inst.transform[:3, 3]
+        lo, hi = np.minimum(lo, w.min(axis=0)), np.maximum(hi, w.max(axis=0))
+    span = hi - lo + 2 * voxel
+    return int(min(np.prod(np.ceil(span / voxel) + 1), max_nodes))
 
 
 def plan(path: Path, params: PlanParams) -> Report:
@@ -127,6 +155,20 @@ def plan(path: Path, params: PlanParams) -> Report:
             "lower --resolution, or use --bases sun (1/18 of the memory)."
         )
     total_s["reference"] = params.reference_paths / REFERENCE_PATHS_PER_S
+    world_tris = sum(sum(len(m.triangles) for m in scene.prototypes[inst.prototype].meshes) for inst in scene.instances)
+    world_bytes = WORLD_BASE_BYTES + WORLD_BYTES_PER_TRIANGLE * world_tris
+    peak = max(peak, world_bytes)
+    forest = None
+    if len(scene.instances) > 1:
+        from foliage_tools.pipeline import forest as forest_mod
+        from foliage_tools.pipeline.spp import EQ31_MAX_INSTANCES
+
+        if len(scene.instances) <= EQ31_MAX_INSTANCES:
+            total_s["spp"] += len(scene.instances) * (len(scene.instances) - 1) * SPP_EQ31_S_PER_PAIR
+        nodes = _forest_nodes(scene, forest_mod.CELLS_PER_CROWN, forest_mod.MAX_NODES)
+        forest = {"nodes": nodes, "seconds_estimate_per_stage": nodes * FOREST_S_PER_NODE}
+        # smax, spp and lb each scale their instances by it (once per `foliage bake`)
+        total_s["forest"] = nodes * FOREST_S_PER_NODE
     # --direct rays (the default): in each of smax, spp and lb run alone, once in a bake; every leaf of every instance
     direct_rays = leaves_total * auto_samples(leaves_total)
     total_s["direct"] = direct_rays / DIRECT_RAYS_PER_S
@@ -134,6 +176,7 @@ def plan(path: Path, params: PlanParams) -> Report:
         "resolution": params.resolution, "bases": params.bases, "depth": depth,
         "prototypes": protos, "instances": len(scene.instances), "leaves_total": int(leaves_total),
         "seconds_estimate": total_s, "peak_memory_bytes": peak, "direct_rays": int(direct_rays),
+        "world_triangles": int(world_tris), "world_memory_bytes": world_bytes, "forest": forest,
         "note": "seconds are estimates from rates measured on a 2-core machine (foliage_tools/pipeline/plan.py)",
     }
     return report.finish()

@@ -34,3 +34,18 @@ def test_plan_lb_memory_follows_the_right_hand_sides():
     # correction on top of the 2.3 fields of plain iteration (0.9 field more)
     assert p_all["lb_memory_bytes"] == pytest.approx(18 * p_sun["lb_memory_bytes"] * 2.3 / 3.2, rel=1e-9)
     assert all_["seconds_estimate"]["lb"] > 5 * sun["seconds_estimate"]["lb"]  # 18x the work, a faster kernel per rhs
+
+
+def test_plan_counts_every_instance_of_a_forest():
+    from foliage_tools.scene.read import read_scene
+
+    forest = EXAMPLE.with_name("forest_small.usda")
+    st = json.loads(foliage("plan", forest, "--json").stdout)["stats"]
+    scene, _ = read_scene(forest)
+    tris = sum(len(m.triangles) for m in scene.prototypes[0].meshes)
+    assert st["instances"] == 16 and st["world_triangles"] == 16 * tris  # the ray scene holds every instance's copy
+    assert st["world_memory_bytes"] > 16 * tris * 500
+    # the forest lattice: 16 cells across the crown over the whole forest's extent, a time per stage
+    assert st["forest"]["nodes"] > 16**3 and st["seconds_estimate"]["forest"] > 0
+    alone = json.loads(foliage("plan", EXAMPLE, "--json").stdout)["stats"]
+    assert alone["forest"] is None and "forest" not in alone["seconds_estimate"]
