@@ -89,7 +89,7 @@ def _describe(s: np.ndarray | None) -> str:
     return f"a transform that scales by {float(s.max()):.3g} (coordinates and areas would overflow)"
 
 
-def transform_problem(prim: Usd.Prim, world: np.ndarray, path: str, what: str = "geometry") -> Problem | None:
+def transform_problem(prim: Usd.Prim, world: np.ndarray, path: str) -> Problem | None:
     """A prim whose world transform (4x4) collapses or overflows, naming the ancestor whose own transform does it
     (the prim itself when only their product does)."""
     s = _scales(world)
@@ -108,10 +108,31 @@ def transform_problem(prim: Usd.Prim, world: np.ndarray, path: str, what: str = 
     # the message names the prim whose own transform does it, so every mesh below it reports the same line
     return Problem(
         "transforms",
-        f"@{path}@: <{culprit.GetPath()}> has {_describe(cs)}, so a bake cannot place the {what} at or under it. Give "
+        f"@{path}@: <{culprit.GetPath()}> has {_describe(cs)}, so a bake cannot place the geometry at or under it. Give "
         f"<{culprit.GetPath()}> a finite scale between {MIN_SCALE:g} and {MAX_SCALE:g}, or make it invisible to leave it out.",
         str(culprit.GetPath()),
     )
+
+
+def instancer_problems(prim: Usd.Prim, world: np.ndarray, path: str) -> Iterator[Problem]:
+    """Instances of a PointInstancer (``world`` = the instancer's world transform) whose transforms collapse or overflow."""
+    pi = UsdGeom.PointInstancer(prim)
+    t = Usd.TimeCode.Default()
+    xforms = pi.ComputeInstanceTransformsAtTime(t, t, UsdGeom.PointInstancer.IncludeProtoXform,
+                                                UsdGeom.PointInstancer.IgnoreMask)
+    if xforms is None:
+        return
+    mask = pi.ComputeMaskAtTime(t)  # instances deactivated by inactiveIds are not read, so not checked
+    bad = [i for i, xf in enumerate(xforms) if (not mask or mask[i]) and _bad_scale(_scales(np.asarray(world) @ np.array(xf, dtype=np.float64).T))]
+    if bad:
+        yield Problem(
+            "transforms",
+            f"@{path}@: {len(bad)} instance(s) of point instancer <{prim.GetPath()}> (first: index {bad[0]}) have a "
+            f"transform that collapses or overflows (scales outside {MIN_SCALE:g} to {MAX_SCALE:g}), so a bake cannot "
+            "place them. Fix their scales or orientations (or the instancer's own transform), or deactivate them "
+            "(inactiveIds).",
+            str(prim.GetPath()),
+        )
 
 
 def light_problem(prim: Usd.Prim, world: np.ndarray, path: str) -> Problem | None:

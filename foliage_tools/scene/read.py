@@ -231,7 +231,7 @@ class _Reader:
         if key not in self.keys:
             self.keys[key] = self.read_prototype(proto, path=str(prim.GetPath()), kind="instance", root_xform=np.eye(4))
         world = _matrix(self.xf.GetLocalToWorldTransform(prim))
-        _refuse([bakeable.transform_problem(prim, world, self.path, what="instance")])
+        _refuse([bakeable.transform_problem(prim, world, self.path)])
         self.instances.append(Instance(prototype=self.keys[key], path=str(prim.GetPath()), transform=world))
 
     def point_instancer(self, pi: UsdGeom.PointInstancer) -> None:
@@ -250,6 +250,7 @@ class _Reader:
         self.instancer_sizes[str(prim.GetPath())] = int(proto_indices.size)
         mask = np.asarray(pi.ComputeMaskAtTime(t) or [True] * len(proto_indices), dtype=bool)
         world = _matrix(self.xf.GetLocalToWorldTransform(prim))
+        _refuse(list(bakeable.instancer_problems(prim, world, self.path)))
         proto_ids: dict[int, int] = {}
         for j, target in enumerate(targets):
             p = self.stage.GetPrimAtPath(target)
@@ -271,12 +272,6 @@ class _Reader:
             if not mask[i] or int(pidx) not in proto_ids:
                 continue
             m = world @ _matrix(xf)
-            if bakeable.transform_problem(prim, m, self.path) is not None:
-                raise InputError(
-                    f"@{self.path}@: instance {i} of point instancer <{prim.GetPath()}> has a transform that collapses "
-                    f"or overflows (scales outside {bakeable.MIN_SCALE:g} to {bakeable.MAX_SCALE:g}); fix its scales "
-                    "or orientations (or the instancer's own transform)."
-                )
             self.instances.append(Instance(prototype=proto_ids[int(pidx)], path=f"{prim.GetPath()}[{i}]", transform=m))
 
     def light(self, prim: Usd.Prim) -> None:

@@ -124,7 +124,7 @@ def _bakeable_prims(stage: Usd.Stage) -> Iterator[Usd.Prim]:
         yield prim
 
 
-@rule("transforms", "Meshes and distant lights have world transforms that neither collapse (scale 0) nor overflow.")
+@rule("transforms", "Meshes, point-instanced instances and distant lights have world transforms that neither collapse (scale 0) nor overflow.")
 def _transforms(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     xf = UsdGeom.XformCache()
     seen = set()
@@ -133,6 +133,8 @@ def _transforms(stage: Usd.Stage, path: str) -> Iterator[Finding]:
             problem = bakeable.transform_problem(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
         elif prim.IsA(UsdLux.DistantLight):
             problem = bakeable.light_problem(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
+        elif prim.IsA(UsdGeom.PointInstancer):
+            problem = next(bakeable.instancer_problems(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path), None)
         else:
             continue
         if problem is not None and problem.message not in seen:  # once per culprit, not per mesh under it

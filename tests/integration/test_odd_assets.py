@@ -59,6 +59,17 @@ def _scaled_light(stage):
     UsdGeom.Xformable(UsdLux.DistantLight.Define(stage, "/Sun")).AddScaleOp().Set(Gf.Vec3f(0, 0, 0))
 
 
+def _point_instancer_with_a_flat_instance(stage):
+    from pxr import Gf, UsdGeom, Vt
+
+    pi = UsdGeom.PointInstancer.Define(stage, "/Forest")
+    pi.CreatePrototypesRel().SetTargets(["/Tree"])
+    pi.CreatePositionsAttr(Vt.Vec3fArray([Gf.Vec3f(0, 0, 0), Gf.Vec3f(5, 0, 0)]))
+    pi.CreateScalesAttr(Vt.Vec3fArray([Gf.Vec3f(1, 1, 1), Gf.Vec3f(0, 0, 0)]))
+    pi.CreateProtoIndicesAttr([0, 0])
+    stage.SetDefaultPrim(pi.GetPrim())
+
+
 def _with_faces(counts):
     m = cards_mesh([(0.0, 0.0, 1.0), (0.5, 0.0, 1.2)])
     m["counts"] = counts  # still summing to the 8 indices, so only the face sizes are wrong
@@ -78,6 +89,8 @@ def _build(name: str, d: Path) -> Path:
         return _edit(_tree(p), _scale("/Tree", 1e200, double=True))
     if name == "zero-area-leaves":
         return _tree(p, leaves={"points": [(0, 0, 1)] * 4, "counts": [4], "indices": [0, 1, 2, 3]})
+    if name == "point-instance-scaled-to-0":
+        return _edit(_tree(p), _point_instancer_with_a_flat_instance)
     if name == "distant-light-scaled-to-0":
         return _edit(_tree(p), _scaled_light)
     if name == "negative-face-vertex-count":
@@ -110,6 +123,7 @@ BAKEABLE = {  # issue 18 case 3: validate passed them, the commands crashed
     "tree-root-scaled-to-0": ("transforms", "</Tree> has a transform that scales by 0"),
     "tree-root-scaled-1e200": ("transforms", "</Tree> has a transform that scales by 1e+200"),
     "zero-area-leaves": ("leaf-area", "leaf mesh </Tree/Leaves> has zero area"),
+    "point-instance-scaled-to-0": ("transforms", "1 instance(s) of point instancer </Forest> (first: index 1)"),
     "distant-light-scaled-to-0": ("transforms", "DistantLight </Sun> has a transform that scales by 0"),
     # issue 18 case 6: validate rejected (or crashed on) them, the commands baked them
     "negative-face-vertex-count": ("finite-geometry", "</Tree/Leaves> has 1 face(s) with fewer than 3 vertices"),
