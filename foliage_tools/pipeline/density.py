@@ -107,10 +107,10 @@ def _stored_density(path: Path, proto: Prototype, grid: GridSpec) -> tuple[tuple
     from pxr import UsdVol
 
     from foliage_tools.scene.vdb import read_grid
-    from foliage_tools.scene.write import input_files
+    from foliage_tools.scene.write import input_files, missing_inputs
 
-    if not any(f.suffix == ".vdb" for f in input_files(path)):
-        return None, None  # a raw asset: no grids to reuse, no need to compose the stage
+    if not any(f.suffix == ".vdb" for f in input_files(path)) and not any(u.endswith(".vdb") for u in missing_inputs(path)):
+        return None, None  # a raw asset: no grids to reuse (present or missing), no need to compose the stage
     stage = _stage_of(path)
     volume = UsdVol.Volume(stage.GetPrimAtPath(volume_path(proto)))
     if not volume:
@@ -122,8 +122,10 @@ def _stored_density(path: Path, proto: Prototype, grid: GridSpec) -> tuple[tuple
     for name in ("density", "woodFraction"):
         asset = UsdVol.OpenVDBAsset(stage.GetPrimAtPath(fields[name]))
         ap = asset.GetFilePathAttr().Get() if asset else None
-        if ap is None or not ap.resolvedPath:
-            return None, f"<{fields[name]}> names no readable .vdb"
+        if ap is None or not ap.path:
+            return None, f"<{fields[name]}> names no .vdb file"
+        if not ap.resolvedPath or not Path(ap.resolvedPath).is_file():
+            return None, f"@{ap.path}@, named by <{fields[name]}>, does not exist"
         stored = read_grid(Path(ap.resolvedPath), asset.GetFieldNameAttr().Get() or name)
         if name == "density" and stored.metadata.get("densityMethod", "area") != "area":
             return None, f"it holds the {stored.metadata.get('densityMethod')} heuristic, not leaf-area density"

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools.errors import InputError
+from foliage_tools.scene import bakeable
 from foliage_tools.geometry.leaves import face_values_from_triangles, leaf_components, triangulate
 from foliage_tools.scene.model import Instance, Leaves, Light, MeshPart, Prototype, Scene
 from foliage_tools.scene.schemas import LEAF_API, register
@@ -114,16 +115,17 @@ class _Reader:
             )
         counts = np.asarray(counts, dtype=np.int64)
         idx = np.asarray(idx, dtype=np.int64)
-        if counts.sum() != idx.shape[0] or (idx.size and (idx.min() < 0 or idx.max() >= points.shape[0])):
-            raise InputError(
-                f"@{self.path}@: mesh <{prim.GetPath()}> has inconsistent topology (faceVertexCounts sum "
-                f"{int(counts.sum())}, {idx.shape[0]} indices, {points.shape[0]} points); fix the asset."
-            )
+        broken = bakeable.topology_problem(str(prim.GetPath()), points.shape[0], counts, idx)
+        if broken:
+            raise InputError(f"@{self.path}@: mesh {broken}")
         tris, face_of_tri = triangulate(counts, idx)
         is_leaf, reason = classify_leaf(prim)
+        placed = _transform_points(points, to_proto)
+        if is_leaf:
+            _refuse([bakeable.leaf_area_problem(str(prim.GetPath()), placed, tris, self.path)])
         return MeshPart(
             path=str(prim.GetPath()),
-            points=_transform_points(points, to_proto),
+            points=placed,
             triangles=tris,
             face_of_triangle=face_of_tri,
             face_count=int(counts.shape[0]),
@@ -150,14 +152,21 @@ class _Reader:
                     continue
                 if prim.IsA(UsdGeom.Mesh):
                     mesh_prims.append(prim)
-        inv_root = np.linalg.inv(_matrix(self.xf.GetLocalToWorldTransform(root))) if kind == "prim" else None
+        inv_root = None
+        if kind == "prim":
+            root_world = _matrix(self.xf.GetLocalToWorldTransform(root))
+            _refuse([bakeable.transform_problem(root, root_world, self.path)])
+            inv_root = np.linalg.inv(root_world)
         parts = []
         for prim in mesh_prims:
             if kind == "prim":
-                to_proto = inv_root @ _matrix(self.xf.GetLocalToWorldTransform(prim))
+                world = _matrix(self.xf.GetLocalToWorldTransform(prim))
+                _refuse([bakeable.transform_problem(prim, world, self.path)])
+                to_proto = inv_root @ world
             else:
                 rel, _ = self.xf.ComputeRelativeTransform(prim, root)
                 to_proto = root_xform @ _matrix(rel)
+                _refuse([bakeable.transform_problem(prim, to_proto, self.path)])
             part = self.read_mesh(prim, to_proto, editable=editable)
             if part is not None:
                 parts.append(part)
@@ -221,9 +230,9 @@ class _Reader:
         key = ("instance", str(proto.GetPath()))
         if key not in self.keys:
             self.keys[key] = self.read_prototype(proto, path=str(prim.GetPath()), kind="instance", root_xform=np.eye(4))
-        self.instances.append(
-            Instance(prototype=self.keys[key], path=str(prim.GetPath()), transform=_matrix(self.xf.GetLocalToWorldTransform(prim)))
-        )
+        world = _matrix(self.xf.GetLocalToWorldTransform(prim))
+        _refuse([bakeable.transform_problem(prim, world, self.path)])
+        self.instances.append(Instance(prototype=self.keys[key], path=str(prim.GetPath()), transform=world))
 
     def point_instancer(self, pi: UsdGeom.PointInstancer) -> None:
         prim = pi.GetPrim()
@@ -241,6 +250,7 @@ class _Reader:
         self.instancer_sizes[str(prim.GetPath())] = int(proto_indices.size)
         mask = np.asarray(pi.ComputeMaskAtTime(t) or [True] * len(proto_indices), dtype=bool)
         world = _matrix(self.xf.GetLocalToWorldTransform(prim))
+        _refuse(list(bakeable.instancer_problems(prim, world, self.path)))
         proto_ids: dict[int, int] = {}
         for j, target in enumerate(targets):
             p = self.stage.GetPrimAtPath(target)
@@ -266,6 +276,8 @@ class _Reader:
 
     def light(self, prim: Usd.Prim) -> None:
         m = _matrix(self.xf.GetLocalToWorldTransform(prim))
+        if prim.IsA(UsdLux.DistantLight):
+            _refuse([bakeable.light_problem(prim, m, self.path)])
         light = UsdLux.LightAPI(prim)
         intensity = float(light.GetIntensityAttr().Get() or 0.0)
         color = tuple(float(c) for c in (light.GetColorAttr().Get() or (1.0, 1.0, 1.0)))
@@ -278,6 +290,14 @@ class _Reader:
             kind = "dome"
         n = np.linalg.norm(d)
         self.lights.append(Light(path=str(prim.GetPath()), kind=kind, direction=d / n if n else d, intensity=intensity, color=color))
+
+
+def _refuse(problems) -> None:
+    """Raise the first of ``bakeable``'s problems (None entries ignored) as an :class:`InputError`."""
+    found = [p for p in problems if p is not None]
+    if found:
+        more = f" ({len(found) - 1} more such problem(s): `foliage validate` lists them.)" if len(found) > 1 else ""
+        raise InputError(found[0].message + more)
 
 
 def _leaves(parts: list[MeshPart]) -> tuple[Leaves, int]:
@@ -319,11 +339,15 @@ def read_scene(path: str | os.PathLike) -> tuple[Scene, list[str]]:
     Raises
     ------
     InputError
-        Missing file, not USD, an empty stage, NaN points, broken topology.
+        Missing file, not USD, an unloadable sublayer or reference, an empty stage, a unit that is not
+        positive, NaN points, broken topology, a transform that collapses or overflows, a leaf mesh
+        of zero area (``scene.bakeable``: the checks ``foliage validate`` reports as errors).
     """
     stage = open_stage(path)
+    _refuse(list(bakeable.composition_problems(stage, str(path))))
     if not any(True for _ in stage.GetPseudoRoot().GetChildren()):
         raise InputError(f"@{path}@: the stage is empty (no prims). Is this the right file?")
+    _refuse(list(bakeable.stage_problems(stage, str(path))))
     reader = _Reader(stage=stage, path=str(path))
     scene = reader.run()
     for proto in scene.prototypes:

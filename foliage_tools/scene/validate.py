@@ -15,14 +15,15 @@ import numpy as np
 
 from foliage_tools.errors import InputError
 from foliage_tools.geometry.leaves import DEGENERATE_AREA, triangle_area_normals, triangulate
+from foliage_tools.scene import bakeable
 from foliage_tools.scene.integrity import check_layers, pending_for, record_of
-from foliage_tools.scene.read import classify_leaf, open_stage
+from foliage_tools.scene.read import _is_skipped, classify_leaf, open_stage
 from foliage_tools.scene.schemas import register
 from foliage_tools.scene.vdb import grid_names, read_grid
 
 register()
 
-from pxr import Usd, UsdGeom, UsdValidation, UsdVol  # noqa: E402
+from pxr import Usd, UsdGeom, UsdLux, UsdValidation, UsdVol  # noqa: E402
 
 ERROR = "error"
 WARNING = "warning"
@@ -102,12 +103,61 @@ def _finite(stage: Usd.Stage, path: str) -> Iterator[Finding]:
             yield Finding(ERROR, "finite-geometry", f"<{prim.GetPath()}> has {bad} point(s) with NaN or infinite coordinates.", str(prim.GetPath()))
         counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
         idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
-        if counts.sum() != idx.shape[0]:
-            yield Finding(ERROR, "finite-geometry", f"<{prim.GetPath()}>: faceVertexCounts sum to {int(counts.sum())} but there are {idx.shape[0]} faceVertexIndices.", str(prim.GetPath()))
-        elif idx.size and (idx.min() < 0 or idx.max() >= p.shape[0]):
-            yield Finding(ERROR, "finite-geometry", f"<{prim.GetPath()}>: faceVertexIndices reach outside its {p.shape[0]} points.", str(prim.GetPath()))
-        elif np.any(counts < 3):
-            yield Finding(ERROR, "finite-geometry", f"<{prim.GetPath()}> has {int(np.count_nonzero(counts < 3))} face(s) with fewer than 3 vertices.", str(prim.GetPath()))
+        broken = bakeable.topology_problem(str(prim.GetPath()), p.shape[0], counts, idx)
+        if broken:
+            yield Finding(ERROR, "finite-geometry", broken, str(prim.GetPath()))
+
+
+@rule("stage-units", "metersPerUnit is finite and positive (bakes honour the stage's units).")
+def _stage_units(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for problem in bakeable.stage_problems(stage, path):
+        yield Finding(ERROR, problem.rule, problem.message, problem.prim)
+
+
+def _bakeable_prims(stage: Usd.Stage) -> Iterator[Usd.Prim]:
+    """Prims a bake reads (as scene.read does: invisible, guide and proxy subtrees left out), through instances."""
+    it = iter(Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()))
+    for prim in it:
+        if _is_skipped(prim):
+            it.PruneChildren()
+            continue
+        yield prim
+
+
+@rule("transforms", "Meshes, point-instanced instances and distant lights have world transforms that neither collapse (scale 0) nor overflow.")
+def _transforms(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    xf = UsdGeom.XformCache()
+    seen = set()
+    for prim in _bakeable_prims(stage):
+        if prim.IsA(UsdGeom.Mesh):
+            problem = bakeable.transform_problem(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
+        elif prim.IsA(UsdLux.DistantLight):
+            problem = bakeable.light_problem(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
+        elif prim.IsA(UsdGeom.PointInstancer):
+            problem = next(bakeable.instancer_problems(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path), None)
+        else:
+            continue
+        if problem is not None and problem.message not in seen:  # once per culprit, not per mesh under it
+            seen.add(problem.message)
+            yield Finding(ERROR, problem.rule, problem.message, problem.prim)
+
+
+@rule("leaf-area", "Every leaf mesh has some nonzero-area triangle (a mesh of only degenerate ones holds no leaf).")
+def _leaf_area(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in _bakeable_prims(stage):
+        if not prim.IsA(UsdGeom.Mesh) or not classify_leaf(prim)[0]:
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        pts, counts, idx = (a.Get() for a in (mesh.GetPointsAttr(), mesh.GetFaceVertexCountsAttr(), mesh.GetFaceVertexIndicesAttr()))
+        if pts is None or counts is None or idx is None or len(pts) == 0:
+            continue
+        p = np.asarray(pts, dtype=np.float64)
+        counts, idx = np.asarray(counts, dtype=np.int64), np.asarray(idx, dtype=np.int64)
+        if not np.isfinite(p).all() or bakeable.topology_problem("", p.shape[0], counts, idx):
+            continue  # reported by finite-geometry
+        problem = bakeable.leaf_area_problem(str(prim.GetPath()), p, triangulate(counts, idx)[0], path)
+        if problem is not None:
+            yield Finding(ERROR, problem.rule, problem.message, problem.prim)
 
 
 @rule("degenerate-geometry", "No zero-area triangles (they carry no leaf area and break normals).")
@@ -122,7 +172,7 @@ def _degenerate(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         p = np.asarray(pts, dtype=np.float64)
         counts = np.asarray(counts, dtype=np.int64)
         idx = np.asarray(idx, dtype=np.int64)
-        if not np.isfinite(p).all() or counts.sum() != idx.shape[0] or idx.max() >= p.shape[0] or idx.min() < 0:
+        if not np.isfinite(p).all() or bakeable.topology_problem("", p.shape[0], counts, idx):
             continue  # reported by finite-geometry
         tris, _ = triangulate(counts, idx)
         area, _ = triangle_area_normals(p, tris)
@@ -200,9 +250,10 @@ def _volume_grids(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         if name not in names:
             yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: @{ap.path}@ has no grid {name!r} (it has {', '.join(names) or 'none'}).", str(prim.GetPath()))
             continue
-        grid = read_grid(Path(resolved), name)
-        if not np.all(np.isfinite(grid.values)):
-            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: grid {name!r} in @{ap.path}@ holds NaN or infinite values.", str(prim.GetPath()))
+        try:
+            read_grid(Path(resolved), name)  # refuses NaN or infinite voxels, naming the file and grid
+        except InputError as exc:
+            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: {exc}", str(prim.GetPath()))
 
 
 @rule("bake-files-match", "Each bake layer's grid files and upstream layers are the ones it was written with (content hashes in its customLayerData).")

@@ -94,7 +94,7 @@ def grid_names(path: Path) -> list[str]:
 
 
 def read_grid(path: Path, name: str) -> Grid:
-    """Read one grid as a dense array over its active bounding box."""
+    """Read one grid as a dense array over its active bounding box; :class:`InputError` if it holds NaN or Inf."""
     path = Path(path)
     if name not in grid_names(path):
         raise InputError(f"@{path}@ has no grid named {name!r}.")
@@ -111,6 +111,11 @@ def read_grid(path: Path, name: str) -> Grid:
     else:
         arr = np.zeros(shape, dtype=np.float32)
     g.copyToArray(arr, ijk=lo)
+    bad = int(np.count_nonzero(~np.isfinite(arr)))
+    if bad:
+        # a stage reading it would carry the NaN into every leaf (or crash in a solver); name the file instead
+        raise InputError(f"@{path}@: grid {name!r} holds {bad} NaN or infinite voxel(s); re-run the bake that wrote it "
+                         "(or delete it and the layer that names it).")
     w0 = np.array(g.transform.indexToWorld(lo))
     w1 = np.array(g.transform.indexToWorld((lo[0] + 1, lo[1], lo[2])))
     h = float(np.linalg.norm(w1 - w0))

@@ -102,6 +102,27 @@ def _input_files(path: Path, _mtime: int) -> frozenset[Path]:
     return frozenset(files)
 
 
+def missing_inputs(input_path: Path) -> tuple[str, ...]:
+    """Asset paths the input's layers name that resolve to no file (e.g. a deleted upstream ``.vdb``), as authored."""
+    p = Path(input_path).resolve()
+    try:
+        mtime = p.stat().st_mtime_ns
+    except OSError:
+        return ()
+    return _missing_inputs(p, mtime)
+
+
+@lru_cache(maxsize=8)
+def _missing_inputs(path: Path, _mtime: int) -> tuple[str, ...]:
+    from pxr import UsdUtils
+
+    try:
+        _layers, _assets, unresolved = UsdUtils.ComputeAllDependencies(Sdf.AssetPath(str(path)))
+    except Exception:  # an unreadable input is reported by the reader, with its own message
+        return ()
+    return tuple(str(u) for u in unresolved)
+
+
 def check_output_path(input_path: Path, out: Path, extra_outputs=(), *, writes_grids: bool = True,
                       warnings: list[str] | None = None) -> None:
     """Refuse outputs that would destroy the input or cannot be written; tidy up after killed runs on this output.
