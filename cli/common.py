@@ -197,6 +197,7 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
             )
         defaults[known[name]] = val
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
+    ctx.meta["foliage.config"] = str(value)  # named by errors in the values it set
     return value
 
 
@@ -272,7 +273,13 @@ def leaf_optics_from_flags(leaf_optics: str | None, wood_reflectance: float | No
     try:
         return parse_leaf_optics(leaf_optics, wood_reflectance=wood_reflectance)
     except ValueError as exc:
-        raise UsageError(str(exc)) from None
+        msg = str(exc)
+        if not msg.startswith("--leaf-optics"):  # a range error of the values: name the flag and what was given
+            msg = f"--leaf-optics {leaf_optics!r}: {msg}"
+        ctx = click.get_current_context(silent=True)
+        if ctx is not None and ctx.get_parameter_source("leaf_optics") == click.core.ParameterSource.DEFAULT_MAP:
+            msg = f"@{ctx.meta.get('foliage.config', 'the --config file')}@, key leaf-optics: {msg}"
+        raise UsageError(msg) from None
 
 
 def execute(stage: Callable, *, as_json: bool, quiet: bool, render: Callable | None = None) -> int:

@@ -170,6 +170,10 @@ def volume_path(proto: Prototype) -> str:
     return f"/FoliageBakes/{re.sub(r'[^A-Za-z0-9_]', '_', proto.name)}/FoliageLighting"
 
 
+#: The area method conserves leaf area to float32 round-off (~1e-7); more lost than this is a grid that does not fit.
+AREA_WARN = 1e-3
+
+
 def vdb_path(out: Path, scene: Scene, index: int) -> Path:
     """``OUT.vdb`` beside the layer; one file per prototype (``OUT.NN_name.vdb``) when there are several."""
     if len(scene.prototypes) == 1:
@@ -236,6 +240,13 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
         )
         edits.volumes.append(VolumeEdit(path=volume_path(proto), vdb_file=vdb_path(out, scene, i), grids=grids, attributes=meta))
         rel_err = abs(res.leaf_area_grid - res.leaf_area_mesh) / res.leaf_area_mesh if params.method == "area" else None
+        if (rel_err is not None and rel_err > AREA_WARN) or not np.any(res.density):
+            size = float(np.ptp(proto.leaves.centers, axis=0).max()) if proto.leaves.count else 0.0
+            report.warnings.append(
+                f"prototype <{proto.path}>: the {'x'.join(map(str, res.grid.shape))} grid (voxel size {res.grid.voxel_size:g}) "
+                f"holds {100 * (1 - (rel_err or 1.0)):.1f} % of the leaf area, {np.count_nonzero(res.density)} voxel(s) "
+                f"non-zero, for foliage {size:g} across: the voxels are too large (or too small) for float32 densities. "
+                "Use --resolution N, or a --voxel-size near the foliage size over 64.")
         protos.append(
             {
                 "path": proto.path,
