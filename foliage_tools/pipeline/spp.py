@@ -324,6 +324,9 @@ def depth_path(scene: Scene, depth: str, direct_mode: str = "rays") -> str:
     return "rays" if leaves <= AUTO_RAYS_MAX_LEAVES else "grid"
 
 
+#: Peak memory per leaf and sample direction of one prototype's SPP/SPPG (tree_small, --depth grid: 16 directions
+#: 0.62 GB, 256 directions 2.90 GB peak resident; 2026-12-02).
+SPP_BYTES_PER_LEAF_DIRECTION = 6.4e3
 #: Above this many instances eq. (31)'s neighbour depths are skipped (with a warning): they cost every instance
 #: against every other, 3.3-3.7 ms a pair measured (issue #16), so 100 instances take ~35 s and 1 000 an hour.
 EQ31_MAX_INSTANCES = 100
@@ -335,8 +338,17 @@ def resolve_depth(scene: Scene, params: SppParams) -> SppParams:
 
 
 def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], progress: Progress) -> list[SppBake]:
+    from foliage_tools.pipeline.plan import available_memory
+
     params = resolve_depth(scene, params)
     baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
+    need = max((p.leaves.count for _, p in baked), default=0) * params.directions * SPP_BYTES_PER_LEAF_DIRECTION
+    free = available_memory()
+    if need > free:  # refuse before any work, as lb and density do (issue #18 case 7)
+        raise UsageError(
+            f"--directions {params.directions}: SPP over {max(p.leaves.count for _, p in baked):,} leaves would hold "
+            f"~{need / 1e9:,.1f} GB ({SPP_BYTES_PER_LEAF_DIRECTION / 1e3:.1f} kB per leaf and direction), "
+            f"{free / 1e9:.1f} GB is available. Use fewer directions (the paper uses 16-64; the default is 16).")
     progress.step(f"SPP/SPPG for {len(baked)} prototype(s), {params.depth} depths", total=len(baked))
     densities = {i: density_for_bake(scene.path, p, DensityParams(resolution=params.resolution, method="area"), warnings) for i, p in baked}
     neighbours = None

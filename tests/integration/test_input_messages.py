@@ -37,3 +37,10 @@ def test_a_voxel_size_that_holds_no_leaf_area_is_warned_about(tmp_path):
     # and a normal grid is not warned about (the area method conserves the leaf area to round-off)
     ok = json.loads(foliage("density", EXAMPLE, "-o", tmp_path / "e.usda", "--json").stdout)
     assert not any("of the leaf area" in w for w in ok["warnings"])
+
+
+def test_spp_refuses_directions_that_cannot_fit_in_memory_before_any_work(tmp_path):
+    # issue #18 case 7: 1M directions took 29 s and 358 GiB before a MemoryError (exit 3)
+    r = foliage("spp", EXAMPLE, "-o", tmp_path / "s.usda", "--directions", "1000000")
+    assert r.returncode == 2 and "--directions 1000000" in r.stderr and "GB is available" in r.stderr, r.stderr
+    assert not (tmp_path / "s.usda").exists()
