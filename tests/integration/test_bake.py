@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+import pytest
+
 from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.bake import BakeParams, run_bake
 from tests.integration.test_cli_errors import foliage
@@ -27,6 +29,7 @@ def test_bake_chains_stages_and_the_last_layer_holds_everything(tmp_path):
     assert foliage("validate", final).returncode == 0
 
 
+@pytest.mark.slow  # > 15 s; the default suite keeps a faster test of the same path
 def test_bake_of_a_forest_of_native_instances_writes_everything_and_the_per_instance_light(tmp_path):
     from pxr import Usd, UsdGeom
 

@@ -12,6 +12,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+import pytest
+
 import numpy as np
 from tests.conftest import cards_mesh, sha256, write_mesh_stage
 
@@ -109,6 +111,7 @@ def test_output_equal_to_input_is_refused(simple_tree):
     assert sha256(simple_tree) == before
 
 
+@pytest.mark.slow  # > 15 s; the default suite keeps a faster test of the same path
 def test_output_over_a_layer_or_grid_the_input_uses_is_refused(tmp_path, simple_tree):
     # chained stages: b.usda sublayers a.usda, which refers to a.vdb; writing either of them again
     # from b would change b's input (and a.usda over itself would make the layer stack a cycle)

@@ -202,6 +202,7 @@ def test_preview_relights_the_bases_and_reproduces_the_baked_sun(tmp_path):
     assert np.abs(other - blend).max() > 0.05 * baked.max()
 
 
+@pytest.mark.slow  # > 15 s; the default suite keeps a faster test of the same path
 def test_forest_preview_relights_every_instance_from_the_bases(tmp_path):
     """Native instances carry no lb primvars; with --bases all the preview still draws their lb light,
     relit per instance, and a --sun-sweep frame differs from the first."""

@@ -59,6 +59,7 @@ def test_registry_lists_landed_and_planned_methods():
         assert not found[name].available
 
 
+@pytest.mark.slow  # > 15 s; the default suite keeps a faster test of the same path
 def test_bench_reports_every_method_with_errors_beside_the_reference_noise(tmp_path):
     r = foliage("bench", EXAMPLE, "--paths", "200000", "--json", "--plot", tmp_path / "p.png")
     assert r.returncode == 0, r.stderr

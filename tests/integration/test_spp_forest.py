@@ -118,6 +118,7 @@ def test_with_the_neighbour_the_shadowed_tree_is_near_the_monte_carlo_reference(
     assert _rel_rms(alone.result.spp.direct + alone.result.spp.scattered, total) > 0.9
 
 
+@pytest.mark.slow  # > 15 s; the default suite keeps a faster test of the same path
 def test_forest_report_counts_neighbours_and_drops_the_eq31_warning(tmp_path):
     r = foliage("spp", FOREST, "-o", tmp_path / "f.usda", "--json", "--depth", "grid", "--resolution", "16", "--directions", "4")
     assert r.returncode == 0, r.stderr

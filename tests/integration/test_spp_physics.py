@@ -117,6 +117,7 @@ def _rel_rms(x, r):
     return float(np.sqrt(np.sum((x - r) ** 2) / np.sum(r**2)))
 
 
+@pytest.mark.slow  # > 15 s; the default suite keeps a faster test of the same path
 def test_ray_depths_beat_grid_depths_against_the_reference():
     scene, sun, rays = _bake(EXAMPLE, "rays")
     _, _, grid = _bake(EXAMPLE, "grid")
