@@ -601,17 +601,19 @@ class _Combination:
         return sum(wt * p.user(t, mu) for p, wt in zip(self.parts, self.weights))
 
 
-def _solve_mode(setup: _Setup, eig: _Eigen):
-    """Solve Fourier order m, treating a resonant mu0 by second-order perturbation."""
-    mu0 = setup.mu0
-    if mu0 is None or setup.omega == 0.0:
-        return _ModeSolution(setup, eig, mu0)
+def resonance_offsets(mu0: float, k: np.ndarray) -> tuple[list[float], list[float]]:
+    """Incidence cosines and weights standing for ``mu0`` given the eigenvalues ``k``.
 
+    ``([mu0], [1.0])`` unless 1/mu0 is (nearly) an eigenvalue; at such a resonance the particular
+    solution is singular, and two perturbed incidences combine to second order in the step h
+    (±h about mu0, or one-sided 2(mu0 - h) - (mu0 - 2h) near mu0 = 1), the step grown until both
+    are clear of every eigenvalue.
+    """
     def resonant(x: float) -> bool:
-        return bool(np.any(np.abs(eig.k * x - 1.0) < RESONANCE_TOLERANCE))
+        return bool(np.any(np.abs(k * x - 1.0) < RESONANCE_TOLERANCE))
 
     if not resonant(mu0):
-        return _ModeSolution(setup, eig, mu0)
+        return [mu0], [1.0]
     h = RESONANCE_STEP
     for _ in range(20):
         if (
@@ -619,14 +621,21 @@ def _solve_mode(setup: _Setup, eig: _Eigen):
             and not resonant(mu0 * (1 + h))
             and not resonant(mu0 * (1 - h))
         ):
-            pts, wts = [mu0 * (1.0 - h), mu0 * (1.0 + h)], [0.5, 0.5]
-            break
+            return [mu0 * (1.0 - h), mu0 * (1.0 + h)], [0.5, 0.5]
         if not resonant(mu0 * (1 - h)) and not resonant(mu0 * (1 - 2 * h)):
-            pts, wts = [mu0 * (1.0 - h), mu0 * (1.0 - 2.0 * h)], [2.0, -1.0]
-            break
+            return [mu0 * (1.0 - h), mu0 * (1.0 - 2.0 * h)], [2.0, -1.0]
         h *= 1.5
-    else:  # pragma: no cover - needs pathologically clustered eigenvalues
-        raise RuntimeError("could not move mu0 off a resonance with the eigenvalues")
+    raise RuntimeError("could not move mu0 off a resonance with the eigenvalues")  # pragma: no cover - needs clustered eigenvalues
+
+
+def _solve_mode(setup: _Setup, eig: _Eigen):
+    """Solve Fourier order m, treating a resonant mu0 by second-order perturbation."""
+    mu0 = setup.mu0
+    if mu0 is None or setup.omega == 0.0:
+        return _ModeSolution(setup, eig, mu0)
+    pts, wts = resonance_offsets(mu0, eig.k)
+    if len(pts) == 1:
+        return _ModeSolution(setup, eig, mu0)
     return _Combination([_ModeSolution(setup, eig, p) for p in pts], wts)
 
 

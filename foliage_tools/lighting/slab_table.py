@@ -89,11 +89,10 @@ from numba import njit
 
 from .phase import PhaseFunction
 from .plane_parallel import (
-    RESONANCE_STEP,
-    RESONANCE_TOLERANCE,
     _eigen,
     _norm_assoc_legendre,
     _Setup,
+    resonance_offsets,
 )
 
 __all__ = [
@@ -433,23 +432,7 @@ def _cached(omega: float, phase: PhaseFunction, mu0: float, n: int) -> SlabTable
 
     # a resonance 1/μ0 = k_j makes the particular solution singular: as plane_parallel, combine
     # two incidences perturbed by ±h (the diffuse field is analytic in μ0; error O(h²) ~ 1e-9)
-    def resonant(m0: float) -> bool:
-        return bool(np.any(np.abs(eig.k * m0 - 1.0) < RESONANCE_TOLERANCE))
-
-    if omega == 0.0 or not resonant(mu0):
-        pts, wts = [mu0], [1.0]
-    else:
-        h = RESONANCE_STEP
-        for _ in range(20):
-            if mu0 * (1.0 + h) <= 1.0 and not resonant(mu0 * (1 + h)) and not resonant(mu0 * (1 - h)):
-                pts, wts = [mu0 * (1.0 - h), mu0 * (1.0 + h)], [0.5, 0.5]
-                break
-            if not resonant(mu0 * (1 - h)) and not resonant(mu0 * (1 - 2 * h)):
-                pts, wts = [mu0 * (1.0 - h), mu0 * (1.0 - 2.0 * h)], [2.0, -1.0]
-                break
-            h *= 1.5
-        else:  # pragma: no cover - needs pathologically clustered eigenvalues
-            raise RuntimeError("could not move mu0 off a resonance with the eigenvalues")
+    pts, wts = ([mu0], [1.0]) if omega == 0.0 else resonance_offsets(mu0, eig.k)
     parts = []
     for m0, wt in zip(pts, wts):
         z = _particular(setup, eig, m0)
