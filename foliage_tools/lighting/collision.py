@@ -301,15 +301,8 @@ def hg_weights(g: float) -> np.ndarray:
     g = float(g)
     if not (math.isfinite(g) and -1.0 <= g <= 1.0):
         raise ValueError(f"g must be in [-1, 1], got {g}")
-    # geist2008 eq. (9) denominator D_ij = 1 - 2 g mu_ij + g^2, cancellation-free
-    if g >= 0.0:
-        D = (1.0 - g) ** 2 + 2.0 * g * _OMM
-    else:
-        D = (1.0 + g) ** 2 - 2.0 * g * _OPM
-    dmin = D.min(axis=0, keepdims=True)
-    # (D_min / D)^(3/2) = p_ij / p_max of the column; 1 at the peak when D_min = 0 (|g| = 1)
-    ratio = np.divide(np.broadcast_to(dmin, D.shape), D, out=np.ones_like(D), where=D > 0.0)
-    p = ratio**1.5
+    # geist2008 eq. (9) relative to each column's peak, cancellation-free (``_hg_relative``)
+    p = _hg_relative(_OMM, _OPM, g)
     num = _M18[:, None] * p  # 24 w_i p_ij
     return num / num.sum(axis=0, keepdims=True)  # geist2008 eq. (8): w_i pn_ij
 
@@ -344,7 +337,11 @@ def _bilambertian(mu: np.ndarray, g: float) -> np.ndarray:
 
 
 def _hg_relative(one_minus_mu: np.ndarray, one_plus_mu: np.ndarray, g: float) -> np.ndarray:
-    """HG p(mu) / max over axis 0, finite for every g including |g| = 1 (see ``hg_weights``)."""
+    """HG p(mu) / max over axis 0, finite for every g including |g| = 1.
+
+    The denominator D = 1 - 2 g mu + g^2 of geist2008 eq. (9) is formed from 1 -+ mu without
+    cancellation, and (D_min / D)^(3/2) is 1 at the peak, also when D_min = 0 (|g| = 1).
+    """
     if g >= 0.0:
         D = (1.0 - g) ** 2 + 2.0 * g * one_minus_mu
     else:
