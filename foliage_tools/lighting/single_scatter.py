@@ -56,6 +56,7 @@ import numpy as np
 from numba import njit, prange
 
 from foliage_tools.lighting.collision import _bilambertian, _check_phase, _hg_relative
+from foliage_tools.lighting.depth import _next_boundary
 
 __all__ = ["DEFAULT_DIRECTIONS", "T_MIN", "fibonacci_directions", "once_scattered_energy"]
 
@@ -99,15 +100,6 @@ def _phase_on(dirs: np.ndarray, d: np.ndarray, g: float, phase: str) -> np.ndarr
     return p / p.mean()
 
 
-@njit(cache=True)
-def _next_face(i, o, d):
-    if d > 0.0:
-        return (i + 1 - o) / d
-    if d < 0.0:
-        return (i - o) / d
-    return math.inf
-
-
 @njit(parallel=True, cache=True)
 def _gather(ext, emit, mat, pm, dirs, nodes, t_min, out):  # pragma: no cover - compiled
     """out[n, c] = sum over directions m of the radiance arriving at node ``nodes[n]`` along dirs[m] (eq. 3).
@@ -125,7 +117,7 @@ def _gather(ext, emit, mat, pm, dirs, nodes, t_min, out):  # pragma: no cover - 
             dx, dy, dz = -dirs[m, 0], -dirs[m, 1], -dirs[m, 2]
             ox, oy, oz = i0 + 0.5, j0 + 0.5, k0 + 0.5
             i, j, k = i0, j0, k0
-            tx, ty, tz = _next_face(i, ox, dx), _next_face(j, oy, dy), _next_face(k, oz, dz)
+            tx, ty, tz = _next_boundary(i, ox, dx), _next_boundary(j, oy, dy), _next_boundary(k, oz, dz)
             sx = 1 if dx > 0.0 else -1
             sy = 1 if dy > 0.0 else -1
             sz = 1 if dz > 0.0 else -1
@@ -149,17 +141,17 @@ def _gather(ext, emit, mat, pm, dirs, nodes, t_min, out):  # pragma: no cover - 
                     i += sx
                     if i < 0 or i >= nx:
                         break
-                    tx = _next_face(i, ox, dx)
+                    tx = _next_boundary(i, ox, dx)
                 elif ty <= tz:
                     j += sy
                     if j < 0 or j >= ny:
                         break
-                    ty = _next_face(j, oy, dy)
+                    ty = _next_boundary(j, oy, dy)
                 else:
                     k += sz
                     if k < 0 or k >= nz:
                         break
-                    tz = _next_face(k, oz, dz)
+                    tz = _next_boundary(k, oz, dz)
         for c in range(C):
             out[n, c] = acc[c]
 
