@@ -16,6 +16,7 @@ from foliage_tools.errors import UsageError
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.lighting import gather
 from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.instances import from_prototypes
 from foliage_tools.pipeline.report import Progress
 from foliage_tools.pipeline.world import World, assemble, prototype_means
 from foliage_tools.scene.model import Scene
@@ -48,10 +49,7 @@ def bake_gather(scene: Scene, sun: Sun, optics: LeafOptics, rest: dict[int, np.n
     check_gather(rays)
     world = world if world is not None else assemble(scene)
     n = int(world.offsets[-1])
-    per_leaf = np.zeros((n, 3))
-    for k, p in enumerate(world.instance_prototype):
-        if int(p) in rest:
-            per_leaf[world.instance_slice(k)] = np.maximum(rest[int(p)], 0.0)
+    per_leaf = np.maximum(from_prototypes(world, rest), 0.0)
     progress.step(f"final gather: {rays} rays per leaf over {n:,} leaves")
     res = gather.solve(gather.GatherInputs(world.triangles, world.leaf_of_triangle, n, optics, sun.direction, rest=per_leaf),
                        gather.GatherParams(rays_per_leaf=rays, seed=seed))
