@@ -14,7 +14,7 @@ from foliage_tools.errors import UsageError
 from foliage_tools.geometry.rays import RayScene, count_crossings
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.forest import forest_light
-from foliage_tools.pipeline.instances import instance_means
+from foliage_tools.pipeline.instances import from_prototypes, instance_means
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.reference import ReferenceParams, bake_reference, noise_warnings, unlit_warnings, unmeasured
 from foliage_tools.pipeline.report import Progress, Report, Silent
@@ -38,14 +38,6 @@ class BenchParams:
     noise_flag: str = "--noise"
     direct_samples: int | None = None
     """Shadow rays per leaf of the exact E_direct (``--direct rays``); None: as the bakes' ``auto``."""
-
-
-def _per_global_leaf(world: World, per_proto: dict[int, np.ndarray], n_leaves: int) -> np.ndarray:
-    out = np.zeros((n_leaves, 3))
-    for n, p in enumerate(world.instance_prototype):
-        if int(p) in per_proto:
-            out[world.instance_slice(n)] = per_proto[int(p)]
-    return out
 
 
 def depth_thickness(world: World, sun_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -91,10 +83,8 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
     exact_direct = np.repeat(exact.result.e_direct[:, None], 3, axis=1)  # per global leaf
     # a forest: each instance's mean light against the reference's, the volume methods' scattered light scaled by
     # the forest lattice as the bakes write it (pipeline.instances, pipeline.forest)
-    forest = None
-    if len(scene.instances) > 1:
-        progress.step("forest lattice: the stand's scattered light per instance")
-        forest = forest_light(scene, sun, params.optics, world)
+    forest = forest_light(scene, sun, params.optics, world, progress=progress)
+    if forest is not None:
         ref_instances = instance_means(world, ref_total)
         direct_instances = instance_means(world, exact_direct)
 
@@ -111,10 +101,10 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
         t = time.perf_counter()
         out = m.run(ctx)
         seconds_volume = time.perf_counter() - t
-        scat = _per_global_leaf(world, out.e_scattered, n)
+        scat = from_prototypes(world, out.e_scattered)
         if out.scattered_per_instance_leaf is not None:
             scat = np.asarray(out.scattered_per_instance_leaf, dtype=np.float64)
-        own = _per_global_leaf(world, out.e_direct, n)
+        own = from_prototypes(world, out.e_direct)
         errors = {
             "rel_rms_scattered": rel_rms(scat, res.e_scattered),
             # with the exact direct light (--direct rays, the default of every bake)

@@ -41,6 +41,7 @@ from foliage_tools.lighting import lb, single_scatter
 from foliage_tools.lighting.collision import density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.instances import instance_means
+from foliage_tools.pipeline.report import Progress, Silent
 from foliage_tools.pipeline.stage import first_instance_sun
 from foliage_tools.pipeline.world import World
 from foliage_tools.scene.model import Scene
@@ -99,12 +100,16 @@ def _scattered(lad: np.ndarray, grid: GridSpec, sun_dir: np.ndarray, optics: Lea
 _LAST: list = []  # (key, world, result): the stages of one `foliage bake` share the world and the sun
 
 
-def forest_light(scene: Scene, sun: Sun, optics: LeafOptics, world: World, *, tolerance: float = 1e-5) -> ForestLight:
-    """The per-instance scale of the scattered light (module docstring).
+def forest_light(scene: Scene, sun: Sun, optics: LeafOptics, world: World, *, progress: Progress | None = None,
+                 tolerance: float = 1e-5) -> ForestLight | None:
+    """The per-instance scale of the scattered light (module docstring); None for a scene of one instance.
 
     The last result is kept: ``foliage bake`` runs smax, spp and lb over one world (its shared direct light's),
     and they need the same lattice.
     """
+    if len(scene.instances) < 2:
+        return None
+    (progress or Silent()).step("forest lattice: the stand's scattered light per instance")
     key = (id(world), tuple(np.round(sun.direction, 12)), tuple(optics.reflectance), tuple(optics.transmittance), tolerance)
     if _LAST and _LAST[0][0] == key and _LAST[0][1] is world:
         return _LAST[0][2]

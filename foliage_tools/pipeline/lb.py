@@ -335,12 +335,10 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
     world = exact.world if exact else (gathered.world if gathered else assemble(scene))
     direct_all = exact.result.e_direct if exact else from_prototypes(world, {b.index: b.e_direct for b in bakes})
     scattered_all = gathered.result.e_scattered if gathered else from_prototypes(world, {b.index: b.e_scattered for b in bakes})
-    forest = None
-    if len(scene.instances) > 1 and gathered is None:  # the neighbours' scattered light (a gather has it already)
-        from foliage_tools.pipeline.forest import forest_light
+    from foliage_tools.pipeline.forest import forest_light
 
-        progress.step("forest lattice: the stand's scattered light per instance")
-        forest = forest_light(scene, sun, params.optics, world)
+    # the neighbours' scattered light (a gather traced it already)
+    forest = forest_light(scene, sun, params.optics, world, progress=progress) if gathered is None else None
     pv, at = bake_instance_edits(scene, "lb", world, direct_all, scattered_all, scale=forest.factors if forest else None)
     edits.primvars += pv
     edits.attributes += at

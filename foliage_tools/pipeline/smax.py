@@ -140,10 +140,7 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
             }
         )
     world = exact.world if exact else assemble(scene)
-    forest = None
-    if len(scene.instances) > 1:  # the neighbours' scattered light, which the lone prototype's bake lacks
-        progress.step("forest lattice: the stand's scattered light per instance")
-        forest = forest_light(scene, sun, params.optics, world)
+    forest = forest_light(scene, sun, params.optics, world, progress=progress)  # the neighbours' scattered light
     pv, at = bake_instance_edits(
         scene, "smax", world,
         exact.result.e_direct if exact else from_prototypes(world, {b.index: b.lighting.e_direct for b in bakes}),

@@ -421,10 +421,8 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         })
     world = exact.world if exact else (gathered.world if gathered else assemble(scene))
     best_of = {b.index: getattr(b.result, best_name) for b in bakes}
-    forest = None
-    if len(scene.instances) > 1 and gathered is None:  # eq. 31 shades by the neighbours; this adds their scattered light
-        progress.step("forest lattice: the stand's scattered light per instance")
-        forest = forest_light(scene, sun, params.optics, world)
+    # eq. 31 shades by the neighbours; the lattice adds their scattered light (a gather traced it already)
+    forest = forest_light(scene, sun, params.optics, world, progress=progress) if gathered is None else None
     pv, at = bake_instance_edits(
         scene, "spp", world,
         exact.result.e_direct if exact else from_prototypes(world, {i: r.direct for i, r in best_of.items()}),
