@@ -21,14 +21,16 @@ def per_face(proto: Prototype, mesh_index: int, per_leaf: np.ndarray) -> np.ndar
     return out
 
 
+def _leaf_meshes(proto: Prototype):
+    """(index, mesh) of each leaf mesh of an editable prototype; none for a native-instance prototype."""
+    if proto.editable:
+        yield from ((i, m) for i, m in enumerate(proto.meshes) if m.is_leaf)
+
+
 def leaf_primvar_edits(proto: Prototype, name: str, per_leaf: np.ndarray, *, type: str, element_size: int = 1) -> list[PrimvarEdit]:
     """One uniform primvar per leaf mesh of an editable prototype (empty for native-instance prototypes)."""
-    if not proto.editable:
-        return []
     edits = []
-    for i, mesh in enumerate(proto.meshes):
-        if not mesh.is_leaf:
-            continue
+    for i, mesh in _leaf_meshes(proto):
         values = per_face(proto, i, per_leaf)
         if element_size > 1:
             values = values.reshape(-1)
@@ -41,18 +43,11 @@ def vertex_primvar_edits(proto: Prototype, name: str, per_leaf: np.ndarray, *, t
 
     Vertices of degenerate faces (no leaf) get zeros.
     """
-    if not proto.editable:
-        return []
     edits = []
-    for i, mesh in enumerate(proto.meshes):
-        if not mesh.is_leaf:
-            continue
-        tri_leaf = proto.leaves.face_leaf_ids[i][mesh.face_of_triangle]
-        vertex_leaf = np.full(mesh.points.shape[0], -1, dtype=np.int64)
-        vertex_leaf[mesh.triangles.reshape(-1)] = np.repeat(tri_leaf, 3)
-        values = np.zeros((mesh.points.shape[0],) + np.shape(per_leaf)[1:])
-        ok = vertex_leaf >= 0
-        values[ok] = np.asarray(per_leaf)[vertex_leaf[ok]]
+    for i, mesh in _leaf_meshes(proto):
+        faces = per_face(proto, i, per_leaf)
+        values = np.zeros((mesh.points.shape[0],) + faces.shape[1:])
+        values[mesh.triangles.reshape(-1)] = np.repeat(faces[mesh.face_of_triangle], 3, axis=0)
         edits.append(PrimvarEdit(prim=mesh.path, name=name, values=values, type=type, interpolation="vertex"))
     return edits
 
