@@ -83,7 +83,7 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
     exact_direct = np.repeat(exact.result.e_direct[:, None], 3, axis=1)  # per global leaf
     # a forest: each instance's mean light against the reference's, the volume methods' scattered light scaled by
     # the forest lattice as the bakes write it (pipeline.instances, pipeline.forest)
-    forest = forest_light(scene, sun, params.optics, world, progress=progress)
+    forest = forest_light(scene, sun, params.optics, progress=progress)
     if forest is not None:
         ref_instances = instance_means(world, ref_total)
         direct_instances = instance_means(world, exact_direct)

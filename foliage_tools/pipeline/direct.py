@@ -21,7 +21,7 @@ from foliage_tools.errors import UsageError
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.lighting import direct
 from foliage_tools.pipeline.report import Progress
-from foliage_tools.pipeline.world import World, assemble, prototype_means
+from foliage_tools.pipeline.world import World, bake_world, prototype_means, traced_parts
 from foliage_tools.scene.model import Scene
 
 #: ``--direct`` choices: shadow rays through the geometry, or the method's own volume estimate.
@@ -78,24 +78,42 @@ class DirectBake:
         }
 
 
+def _joined(parts: list[direct.DirectResult]) -> direct.DirectResult:
+    """One result of the lone trees traced one by one (their leaves in world order)."""
+    n = np.array([len(p.e_direct) for p in parts], dtype=np.float64)
+    noise = float(np.sqrt(np.sum(n * np.array([p.noise_rel for p in parts]) ** 2) / max(n.sum(), 1.0)))
+    return direct.DirectResult(
+        e_direct=np.concatenate([p.e_direct for p in parts]), noise_rel=noise,
+        lit_fraction=np.concatenate([p.lit_fraction for p in parts]), rays=sum(p.rays for p in parts),
+        samples_per_leaf=parts[0].samples_per_leaf, seconds=sum(p.seconds for p in parts))
+
+
 def bake_direct(scene: Scene, sun: Sun, choice: DirectChoice, progress: Progress, world: World | None = None) -> DirectBake:
     """Exact E_direct of every leaf of every instance; per prototype, the mean over its instances."""
     if choice.precomputed is not None:
         if [len(p) for p in choice.precomputed.per_prototype] != [p.leaves.count for p in scene.prototypes]:
             raise ValueError("DirectChoice.precomputed was traced for another scene")
         return choice.precomputed
-    world = world if world is not None else assemble(scene)
+    world = world if world is not None else bake_world(scene)
     n = int(world.offsets[-1])
     samples = choice.samples if choice.samples is not None else auto_samples(n)
-    inputs = direct.DirectInputs(world.triangles, world.leaf_of_triangle, n, sun.direction)
-    progress.step(f"direct sunlight: {samples} shadow rays per leaf through {len(world.triangles):,} triangles", total=n)
+    alone = " (each prototype alone: the forest lattice adds the stand's shade)" if world.lone else ""
+    progress.step(f"direct sunlight: {samples} shadow rays per leaf through {len(world.triangles):,} triangles{alone}", total=n)
     done = [0]
 
     def advance(d: int, _total: int) -> None:
         progress.advance(d - done[0])
         done[0] = d
 
-    res = direct.solve(inputs, direct.DirectParams(samples_per_leaf=samples, seed=choice.seed), progress=advance)
+    parts = []
+    for tris, ids, count, leaves in traced_parts(world):  # the whole world, or each lone tree of a large forest
+        if world.lone and count == 0:
+            continue
+        base = leaves.start
+        parts.append(direct.solve(direct.DirectInputs(tris, ids, count, sun.direction),
+                                  direct.DirectParams(samples_per_leaf=samples, seed=choice.seed),
+                                  progress=lambda d, _t, base=base: advance(base + d, n)))
+    res = parts[0] if len(parts) == 1 else _joined(parts)  # (a lone world has leaves: bake_world)
     counts = [p.leaves.count for p in scene.prototypes]
     per_leaf = np.repeat(res.e_direct[:, None], 3, axis=1)
     return DirectBake(world, res, prototype_means(world, per_leaf, len(counts), counts))

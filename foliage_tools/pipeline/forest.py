@@ -18,7 +18,13 @@ the whole scene and lets it scale the fine per-tree light. Here:
    over its leaves in the stand to that over the prototype's leaves alone,
    per channel:
 
-       f_n = <u_s,stand>_n / <u_s,alone>_p(n).
+       f_n = <u_s,stand>_n / <u_s,alone>_p(n);
+
+4. the same ratio of the never-scattered beam (the exact attenuated sun at
+   the nodes, ``lb.LBResult.beam_direct``) is the instance's direct factor,
+   the neighbours' shade. It is used where the shadow rays trace only the
+   lone trees (a forest above ``world.WORLD_MAX_TRIANGLES``); below, the
+   rays trace every instance and the direct light needs no factor.
 
 Both solves use the same voxel size and the same deposit, so the coarse grid's
 own error in u_s cancels in the ratio to first order; what it keeps is how much
@@ -29,6 +35,7 @@ depends on the azimuth at which a round crown is turned.
 
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import dataclass
 
@@ -38,18 +45,21 @@ from scipy import ndimage
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.geometry.voxelize import GridSpec
 from foliage_tools.lighting import lb, single_scatter
+from foliage_tools.lighting import stand as placed
 from foliage_tools.lighting.collision import density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
-from foliage_tools.pipeline.instances import instance_means
 from foliage_tools.pipeline.report import Progress, Silent
 from foliage_tools.pipeline.stage import first_instance_sun
-from foliage_tools.pipeline.world import World
 from foliage_tools.scene.model import Scene
 
 #: Coarse cells across the largest prototype's longest edge. On the 5 x 5 stand of tests/integration/test_stand.py
 #: every instance's factor was within 2.6 % of the Monte Carlo reference's at 16 (the centre tree 1.31 against
 #: 1.30), the centre +9 % off at 8 and +16 % at 4; 0.6 s at 8, 3 s at 16.
 CELLS_PER_CROWN = 16
+#: The lattice's stopping tolerance and the exact first order's directions (lighting.single_scatter). The factors
+#: are ratios of crown means: on the 5 x 5 stand, tolerance 1e-3 moved every factor by < 0.2 % from 1e-5 (in half
+#: the sweeps; 1e-2: 4.4 %), and 16 directions by < 0.7 % from 64 (in 40 % of the time).
+TOLERANCE, DIRECTIONS = 1e-3, 16
 #: Most nodes of the stand's grid: above it the cells grow (and the factor gets cruder; 10 000 crowns get ~5 cells
 #: across), so the solve holds ~2-3 GB.
 MAX_NODES = 4_000_000
@@ -63,18 +73,16 @@ class ForestLight:
     """(nx, ny, nz, 3) scattered scalar irradiance of the stand, per unit sun irradiance."""
     factors: np.ndarray
     """(N, 3) per instance: its scattered light in the stand over the same tree's alone."""
+    direct_factors: np.ndarray
+    """(N, 3) per instance: its direct light in the stand over the same tree's alone (the neighbours' shade;
+    used where the shadow rays trace the lone trees, ``world.bake_world``)."""
     seconds: float
 
     def stats(self) -> dict:
         return {"grid": list(self.grid.shape), "voxel_size": self.grid.voxel_size, "seconds": self.seconds,
-                "factor_min": self.factors.min(axis=0).tolist(), "factor_max": self.factors.max(axis=0).tolist()}
-
-
-def _deposit(centres: np.ndarray, areas: np.ndarray, lo: np.ndarray, voxel: float, shape) -> np.ndarray:
-    """Leaf-area density: each leaf's area in the cell holding its centre, over the cell volume."""
-    idx = np.clip(np.floor((centres - lo) / voxel).astype(np.int64), 0, np.asarray(shape) - 1)
-    flat = np.ravel_multi_index(tuple(idx.T), shape)
-    return np.bincount(flat, weights=areas, minlength=int(np.prod(shape))).reshape(shape) / voxel**3
+                "factor_min": self.factors.min(axis=0).tolist(), "factor_max": self.factors.max(axis=0).tolist(),
+                "direct_factor_min": self.direct_factors.min(axis=0).tolist(),
+                "direct_factor_max": self.direct_factors.max(axis=0).tolist()}
 
 
 def _grid_over(points: np.ndarray, voxel: float) -> GridSpec:
@@ -83,70 +91,100 @@ def _grid_over(points: np.ndarray, voxel: float) -> GridSpec:
     return GridSpec(origin=tuple(float(v) for v in lo), voxel_size=float(voxel), shape=shape)
 
 
-def _scattered(lad: np.ndarray, grid: GridSpec, sun_dir: np.ndarray, optics: LeafOptics, tolerance: float) -> np.ndarray:
-    """u_s (nx, ny, nz, C) of the sun through a leaf-area density, as ``foliage lb`` solves it."""
+def _solve(lad: np.ndarray, grid: GridSpec, sun_dir: np.ndarray, optics: LeafOptics, tolerance: float,
+           directions: int = DIRECTIONS):
+    """(u_s, beam): scattered and never-scattered scalar irradiance (nx, ny, nz, C) of the sun through a leaf-area
+    density, as ``foliage lb`` solves it."""
     rho = density_from_lad(lad, grid.voxel_size)
     problem = lb.LBProblem(density=rho, medium=leaf_medium(optics, absorption_scale=1.0, phase="bilambertian"),
                            boundaries=(lb.sun_source(sun_dir),))
     res = lb.solve(problem, lb.LBParams(tolerance=tolerance))
     occupied = rho > 0
     near = ndimage.binary_dilation(occupied, structure=np.ones((3, 3, 3), bool))
-    total = single_scatter.corrected_energy(problem, res, mask=occupied, fill=near)
+    total = single_scatter.corrected_energy(problem, res, mask=occupied, fill=near, directions=directions)
     # the exact first order matters here: with the lattice's own, every factor of the 5 x 5 stand read
     # 6-19 % above the reference's (it does not cancel in the ratio)
-    return np.maximum(total[..., 0, :] - res.beam_direct[..., 0, :], 0.0)
+    beam = res.beam_direct[..., 0, :]
+    return np.maximum(total[..., 0, :] - beam, 0.0), beam
 
 
-_LAST: list = []  # (key, world, result): the stages of one `foliage bake` share the world and the sun
+_LAST: list = []  # (key, result): the stages of one `foliage bake` read the same scene under the same sun
 
 
-def forest_light(scene: Scene, sun: Sun, optics: LeafOptics, world: World, *, progress: Progress | None = None,
-                 tolerance: float = 1e-5) -> ForestLight | None:
-    """The per-instance scale of the scattered light (module docstring); None for a scene of one instance.
+def forest_light(scene: Scene, sun: Sun, optics: LeafOptics, *, progress: Progress | None = None,
+                 tolerance: float = TOLERANCE) -> ForestLight | None:
+    """The per-instance scale of the scattered and direct light (module docstring); None for a scene of one instance.
 
-    The last result is kept: ``foliage bake`` runs smax, spp and lb over one world (its shared direct light's),
-    and they need the same lattice.
+    The last result is kept: ``foliage bake`` runs smax, spp and lb over one scene, and they need the same lattice.
     """
     if len(scene.instances) < 2:
         return None
-    (progress or Silent()).step("forest lattice: the stand's scattered light per instance")
-    key = (id(world), tuple(np.round(sun.direction, 12)), tuple(optics.reflectance), tuple(optics.transmittance), tolerance)
-    if _LAST and _LAST[0][0] == key and _LAST[0][1] is world:
-        return _LAST[0][2]
-    result = _forest_light(scene, sun, optics, world, tolerance)
-    _LAST[:] = [(key, world, result)]
+    (progress or Silent()).step(f"forest lattice: the stand's light per instance ({len(scene.instances):,} instances)")
+    key = (_fingerprint(scene), tuple(np.round(sun.direction, 12)), tuple(optics.reflectance),
+           tuple(optics.transmittance), tolerance)
+    if _LAST and _LAST[0][0] == key:
+        return _LAST[0][1]
+    result = _forest_light(scene, sun, optics, tolerance)
+    _LAST[:] = [(key, result)]
     return result
 
 
-def _forest_light(scene: Scene, sun: Sun, optics: LeafOptics, world: World, tolerance: float) -> ForestLight:
-    from foliage_tools.pipeline.lb import sample_trilinear  # pipeline.lb bakes with this module's factors
+def _fingerprint(scene: Scene) -> str:
+    """What the lattice depends on: every instance's prototype and transform, every prototype's leaves."""
+    h = hashlib.sha1()
+    h.update(np.array([i.prototype for i in scene.instances], dtype=np.int64).tobytes())
+    h.update(np.stack([np.asarray(i.transform, dtype=np.float64) for i in scene.instances]).tobytes())
+    for proto in scene.prototypes:
+        h.update(np.ascontiguousarray(proto.leaves.centers, dtype=np.float64).tobytes())
+        h.update(np.ascontiguousarray(proto.leaves.areas, dtype=np.float64).tobytes())
+    return h.hexdigest()
 
-    t0 = time.perf_counter()
-    baked = [i for i, p in enumerate(scene.prototypes) if p.leaves.count]
+
+def stand_grid(scene: Scene) -> GridSpec:
+    """The stand's coarse world grid: ``CELLS_PER_CROWN`` cells across the largest prototype's leaves, over the
+    bounds of every instance's leaf box, coarser when that holds more than ``MAX_NODES`` nodes."""
+    baked = [i for i, p in enumerate(scene.prototypes) if p.leaves.count and scene.instances_of(i)]
     crown = max(float(np.ptp(scene.prototypes[i].leaves.centers, axis=0).max()) for i in baked)
     voxel = max(crown, 1e-9) / CELLS_PER_CROWN
-    span = np.ptp(world.leaf_centers, axis=0) + 2 * voxel
+    corners = []
+    for i in baked:
+        c = scene.prototypes[i].leaves.centers
+        lo, hi = c.min(axis=0), c.max(axis=0)
+        box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        m = np.stack([inst.transform for inst in scene.instances_of(i)])
+        w = np.einsum("kij,lj->kli", m[:, :3, :3], box) + m[:, None, :3, 3]
+        corners += [w.min(axis=(0, 1)), w.max(axis=(0, 1))]
+    corners = np.array(corners)
+    span = np.ptp(corners, axis=0) + 2 * voxel
     if np.prod(np.ceil(span / voxel) + 1) > MAX_NODES:
         voxel = float((np.prod(span) / MAX_NODES) ** (1 / 3))
-    grid = _grid_over(world.leaf_centers, voxel)
-    lo = np.asarray(grid.origin)
-    stand = _scattered(_deposit(world.leaf_centers, world.leaf_area, lo, voxel, grid.shape), grid, sun.direction, optics, tolerance)
-    in_stand = instance_means(world, sample_trilinear(stand, grid, world.leaf_centers))
-    alone = {}
+    return _grid_over(corners, voxel)
+
+
+def _forest_light(scene: Scene, sun: Sun, optics: LeafOptics, tolerance: float) -> ForestLight:
+    t0 = time.perf_counter()
+    baked = [i for i, p in enumerate(scene.prototypes) if p.leaves.count and scene.instances_of(i)]
+    grid = stand_grid(scene)
+    voxel = grid.voxel_size
+    placements = {i: np.stack([inst.transform for inst in scene.instances_of(i)]) for i in baked}
+    lad = np.zeros(grid.shape)
     for i in baked:
-        proto = scene.prototypes[i]
-        # the prototype's leaf areas in its own frame (world areas of one instance over its scale squared)
-        k = next(n for n, inst in enumerate(scene.instances) if inst.prototype == i)
-        s2 = abs(np.linalg.det(scene.instances[k].transform[:3, :3])) ** (2 / 3)
-        areas = world.leaf_area[world.instance_slice(k)] / s2
-        g = _grid_over(proto.leaves.centers, voxel)
-        u = _scattered(_deposit(proto.leaves.centers, areas, np.asarray(g.origin), voxel, g.shape), g,
-                       first_instance_sun(scene, i, sun.direction), optics, tolerance)
-        vals = sample_trilinear(u, g, proto.leaves.centers)
-        alone[i] = np.tensordot(areas, vals, axes=(0, 0)) / areas.sum()
-    factors = np.ones((len(scene.instances), 3))
-    for n, inst in enumerate(scene.instances):
-        a = alone.get(inst.prototype)
-        if a is not None:
-            factors[n] = np.divide(in_stand[n], a, out=np.ones(3), where=a > 0)
-    return ForestLight(grid, stand, factors, time.perf_counter() - t0)
+        leaves = scene.prototypes[i].leaves
+        placed.deposit(grid, placements[i], leaves.centers, leaves.areas, out=lad)
+    stand, stand_beam = _solve(lad, grid, sun.direction, optics, tolerance)
+    del lad
+    both = np.concatenate([stand, stand_beam], axis=-1)  # one pass over the placed leaves for the two fields
+    n = len(scene.instances)
+    factors, direct_factors = np.ones((n, stand.shape[-1])), np.ones((n, stand.shape[-1]))
+    for i in baked:
+        leaves = scene.prototypes[i].leaves
+        in_stand = placed.instance_means(both, grid, placements[i], leaves.centers, leaves.areas)
+        g = _grid_over(leaves.centers, voxel)
+        u, beam = _solve(placed.deposit(g, np.eye(4), leaves.centers, leaves.areas), g,
+                         first_instance_sun(scene, i, sun.direction), optics, tolerance)
+        alone = placed.instance_means(np.concatenate([u, beam], axis=-1), g, np.eye(4), leaves.centers, leaves.areas)
+        ks = [k for k, inst in enumerate(scene.instances) if inst.prototype == i]
+        ratio = np.divide(in_stand, alone, out=np.ones_like(in_stand), where=alone > 0)
+        c = stand.shape[-1]
+        factors[ks], direct_factors[ks] = ratio[:, :c], ratio[:, c:]
+    return ForestLight(grid, stand, factors, direct_factors, time.perf_counter() - t0)

@@ -18,7 +18,7 @@ from foliage_tools.lighting import gather
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.instances import from_prototypes
 from foliage_tools.pipeline.report import Progress
-from foliage_tools.pipeline.world import World, assemble, prototype_means
+from foliage_tools.pipeline.world import World, bake_world, prototype_means, traced_parts
 from foliage_tools.scene.model import Scene
 
 
@@ -43,15 +43,27 @@ class GatherBake:
                 "first_bounce_share": float(r.e_first.sum() / r.e_scattered.sum()) if r.e_scattered.sum() > 0 else None}
 
 
+def _joined(parts: list[gather.GatherResult]) -> gather.GatherResult:
+    """One result of the lone trees gathered one by one (their leaves in world order)."""
+    n = np.array([len(p.e_scattered) for p in parts], dtype=np.float64)
+    noise = float(np.sqrt(np.sum(n * np.array([p.noise_rel for p in parts]) ** 2) / max(n.sum(), 1.0)))
+    return gather.GatherResult(e_scattered=np.concatenate([p.e_scattered for p in parts]),
+                               e_first=np.concatenate([p.e_first for p in parts]), noise_rel=noise,
+                               rays=sum(p.rays for p in parts), seconds=sum(p.seconds for p in parts))
+
+
 def bake_gather(scene: Scene, sun: Sun, optics: LeafOptics, rest: dict[int, np.ndarray], rays: int, progress: Progress,
                 world: World | None = None, seed: int = 0) -> GatherBake:
     """Gathered E_scattered per prototype; ``rest[p]`` is the volume method's (L_p, 3) E_scattered of prototype p."""
     check_gather(rays)
-    world = world if world is not None else assemble(scene)
+    world = world if world is not None else bake_world(scene)
     n = int(world.offsets[-1])
     per_leaf = np.maximum(from_prototypes(world, rest), 0.0)
-    progress.step(f"final gather: {rays} rays per leaf over {n:,} leaves")
-    res = gather.solve(gather.GatherInputs(world.triangles, world.leaf_of_triangle, n, optics, sun.direction, rest=per_leaf),
-                       gather.GatherParams(rays_per_leaf=rays, seed=seed))
+    alone = " (each prototype alone: the forest lattice adds the stand's light)" if world.lone else ""
+    progress.step(f"final gather: {rays} rays per leaf over {n:,} leaves{alone}")
+    parts = [gather.solve(gather.GatherInputs(tris, ids, count, optics, sun.direction, rest=per_leaf[leaves]),
+                          gather.GatherParams(rays_per_leaf=rays, seed=seed))
+             for tris, ids, count, leaves in traced_parts(world) if count or not world.lone]
+    res = parts[0] if len(parts) == 1 else _joined(parts)
     counts = [p.leaves.count for p in scene.prototypes]
     return GatherBake(world, res, rays, prototype_means(world, res.e_scattered, len(counts), counts))

@@ -89,17 +89,28 @@ def instance_edits(scene: Scene, method: str, values: dict[str, np.ndarray]) -> 
 
 
 def bake_instance_edits(scene: Scene, method: str, world: World, e_direct: np.ndarray, e_scattered: np.ndarray,
-                        scale: np.ndarray | None = None) -> tuple[list[PrimvarEdit], list[AttributeEdit]]:
+                        forest=None) -> tuple[list[PrimvarEdit], list[AttributeEdit]]:
     """The per-instance means of a bake's per-global-leaf E_direct ((L,) or (L, 3)) and E_scattered ((L, 3)).
 
-    ``scale`` (N, 3), the forest lattice's factors (pipeline.forest), multiplies the scattered means of a
-    method that lit each prototype alone, and is written too (``instanceScale``).
+    ``forest`` (a ``pipeline.forest.ForestLight``): its factors multiply the scattered means of a method that lit
+    each prototype alone, and are written too (``instanceScale``). Over a lone world (``world.bake_world``: a
+    forest traced as its lone trees) every instance starts from its prototype's lone mean, and the direct mean is
+    multiplied by the forest's direct factor as well (``instanceDirectScale``).
     """
     d = np.asarray(e_direct, dtype=np.float64)
     if d.ndim == 1:
         d = np.repeat(d[:, None], 3, axis=1)
-    values = {"instanceDirect": instance_means(world, d), "instanceScattered": instance_means(world, e_scattered)}
-    if scale is not None:
-        values["instanceScattered"] = values["instanceScattered"] * scale
-        values["instanceScale"] = np.asarray(scale, dtype=np.float64)
+    direct, scattered = instance_means(world, d), instance_means(world, e_scattered)
+    values = {}
+    if world.lone:
+        row = {int(p): r for r, p in enumerate(world.instance_prototype)}
+        rows = [row[inst.prototype] for inst in scene.instances]
+        direct, scattered = direct[rows], scattered[rows]
+        if forest is not None:
+            direct = direct * forest.direct_factors
+            values["instanceDirectScale"] = np.asarray(forest.direct_factors, dtype=np.float64)
+    values.update({"instanceDirect": direct, "instanceScattered": scattered})
+    if forest is not None:
+        values["instanceScattered"] = scattered * forest.factors
+        values["instanceScale"] = np.asarray(forest.factors, dtype=np.float64)
     return instance_edits(scene, method, values)

@@ -51,7 +51,7 @@ from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.gather import bake_gather, check_gather
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
-from foliage_tools.pipeline.world import assemble
+from foliage_tools.pipeline.world import bake_world
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
@@ -332,14 +332,14 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "e_scattered_lattice_mean": bake.e_scattered.mean(axis=0).tolist(),
             "e_direct_volume_mean": bake.e_direct.mean(axis=0).tolist(),
         })
-    world = exact.world if exact else (gathered.world if gathered else assemble(scene))
+    world = exact.world if exact else (gathered.world if gathered else bake_world(scene))
     direct_all = exact.result.e_direct if exact else from_prototypes(world, {b.index: b.e_direct for b in bakes})
     scattered_all = gathered.result.e_scattered if gathered else from_prototypes(world, {b.index: b.e_scattered for b in bakes})
     from foliage_tools.pipeline.forest import forest_light
 
     # the neighbours' scattered light (a gather traced it already)
-    forest = forest_light(scene, sun, params.optics, world, progress=progress) if gathered is None else None
-    pv, at = bake_instance_edits(scene, "lb", world, direct_all, scattered_all, scale=forest.factors if forest else None)
+    forest = forest_light(scene, sun, params.optics, progress=progress) if gathered is None or world.lone else None
+    pv, at = bake_instance_edits(scene, "lb", world, direct_all, scattered_all, forest=forest)
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")

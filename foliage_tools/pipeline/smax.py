@@ -18,7 +18,7 @@ from foliage_tools.lighting import boulanger, envelope
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
-from foliage_tools.pipeline.world import assemble
+from foliage_tools.pipeline.world import bake_world
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
@@ -139,12 +139,12 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
                 "seconds": float(env.seconds + light.seconds),
             }
         )
-    world = exact.world if exact else assemble(scene)
-    forest = forest_light(scene, sun, params.optics, world, progress=progress)  # the neighbours' scattered light
+    world = exact.world if exact else bake_world(scene)
+    forest = forest_light(scene, sun, params.optics, progress=progress)  # the neighbours' scattered light
     pv, at = bake_instance_edits(
         scene, "smax", world,
         exact.result.e_direct if exact else from_prototypes(world, {b.index: b.lighting.e_direct for b in bakes}),
-        from_prototypes(world, {b.index: b.lighting.e_scattered for b in bakes}), scale=forest.factors if forest else None)
+        from_prototypes(world, {b.index: b.lighting.e_scattered for b in bakes}), forest=forest)
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")

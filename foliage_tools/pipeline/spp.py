@@ -60,7 +60,7 @@ from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.gather import bake_gather, check_gather
 from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
-from foliage_tools.pipeline.world import assemble
+from foliage_tools.pipeline.world import bake_world
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
@@ -419,15 +419,15 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
             "density": bake.density_source,
             "e_scattered_mean": {m: v.mean(axis=0).tolist() for m, v in scattered.items()},
         })
-    world = exact.world if exact else (gathered.world if gathered else assemble(scene))
+    world = exact.world if exact else (gathered.world if gathered else bake_world(scene))
     best_of = {b.index: getattr(b.result, best_name) for b in bakes}
     # eq. 31 shades by the neighbours; the lattice adds their scattered light (a gather traced it already)
-    forest = forest_light(scene, sun, params.optics, world, progress=progress) if gathered is None else None
+    forest = forest_light(scene, sun, params.optics, progress=progress) if gathered is None or world.lone else None
     pv, at = bake_instance_edits(
         scene, "spp", world,
         exact.result.e_direct if exact else from_prototypes(world, {i: r.direct for i, r in best_of.items()}),
         gathered.result.e_scattered if gathered else from_prototypes(world, {i: r.scattered for i, r in best_of.items()}),
-        scale=forest.factors if forest else None)
+        forest=forest)
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")

@@ -3,11 +3,18 @@
 Used by methods that trace the actual geometry (the Monte Carlo reference):
 leaf ``k`` of instance ``n`` of prototype ``p`` gets the global id
 ``offsets[n] + k``.
+
+A forest too large to copy (more than :data:`WORLD_MAX_TRIANGLES` placed
+triangles) is traced as its lone trees instead (:func:`bake_world`): one
+instance per prototype, its first, each traced alone (:func:`lone_parts`),
+so the shadow rays and the gather cost what the prototypes cost, not the
+instances; the stand's effect on each instance then comes from the coarse
+forest lattice (``pipeline.forest``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,14 +35,61 @@ class World:
     """(N,) prototype index of each instance (the order of ``Scene.instances``)."""
     offsets: np.ndarray
     """(N + 1,) first global leaf id of each instance; the last entry is L."""
+    triangle_offsets: np.ndarray | None = None
+    """(N + 1,) first triangle of each instance."""
+    lone: bool = False
+    """The scene's lone trees (:func:`lone_trees`), not its instances: instance n here is its prototype's first
+    instance, to be traced alone (:func:`lone_parts`)."""
 
     def instance_slice(self, n: int) -> slice:
         return slice(int(self.offsets[n]), int(self.offsets[n + 1]))
 
 
+#: Most placed triangles the bakes copy into one world (~170 B each with Embree's scene: ~1.4 GB); a larger
+#: forest is traced as its lone trees (module docstring). 8M is a stand of ~2 000 trees of 4 000 triangles.
+WORLD_MAX_TRIANGLES = 8_000_000
+
+
+def world_triangles(scene: Scene) -> int:
+    """Triangles of every instance placed in the world (what :func:`assemble` copies)."""
+    per_proto = [sum(len(m.triangles) for m in p.meshes) for p in scene.prototypes]
+    return int(sum(per_proto[i.prototype] for i in scene.instances))
+
+
+def lone_trees(scene: Scene) -> Scene:
+    """The scene with one instance per instanced prototype, its first (so it sees the sun as that one does)."""
+    firsts = {}
+    for inst in scene.instances:
+        firsts.setdefault(inst.prototype, inst)
+    return replace(scene, instances=tuple(firsts[p] for p in sorted(firsts)))
+
+
+def lone_parts(world: World) -> list[tuple[slice, slice]]:
+    """Per tree the (triangle, leaf) slices to trace alone: each instance of a lone world, or the whole world."""
+    if not world.lone:
+        return [(slice(0, len(world.triangles)), slice(0, int(world.offsets[-1])))]
+    t = world.triangle_offsets
+    return [(slice(int(t[n]), int(t[n + 1])), world.instance_slice(n)) for n in range(len(world.instance_prototype))]
+
+
+def traced_parts(world: World):
+    """Per tree to trace alone (:func:`lone_parts`): its triangles, their leaf ids from 0, its leaf count and its
+    slice of the world's leaves."""
+    for tris, leaves in lone_parts(world):
+        ids = world.leaf_of_triangle[tris]
+        yield world.triangles[tris], np.where(ids >= 0, ids - leaves.start, -1), leaves.stop - leaves.start, leaves
+
+
+def bake_world(scene: Scene) -> World:
+    """The world the bakes trace: the whole scene, or its lone trees above :data:`WORLD_MAX_TRIANGLES`."""
+    if len(scene.instances) > 1 and world_triangles(scene) > WORLD_MAX_TRIANGLES:
+        return replace(assemble(lone_trees(scene)), lone=True)
+    return assemble(scene)
+
+
 def assemble(scene: Scene) -> World:
     tris, leaf_ids, centers = [], [], []
-    offsets = [0]
+    offsets, tri_offsets = [0], [0]
     for inst in scene.instances:
         proto = scene.prototypes[inst.prototype]
         m = inst.transform
@@ -49,6 +103,7 @@ def assemble(scene: Scene) -> World:
                 leaf_ids.append(np.full(len(v), -1, dtype=np.int64))
         centers.append(proto.leaves.centers @ m[:3, :3].T + m[:3, 3])
         offsets.append(offsets[-1] + proto.leaves.count)
+        tri_offsets.append(tri_offsets[-1] + sum(len(mesh.triangles) for mesh in proto.meshes))
     if not tris:
         z = np.zeros((0, 3, 3))
         return World(z, np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64), np.array([0]))
@@ -65,6 +120,7 @@ def assemble(scene: Scene) -> World:
         leaf_centers=np.concatenate(centers),
         instance_prototype=np.array([i.prototype for i in scene.instances], dtype=np.int64),
         offsets=np.array(offsets, dtype=np.int64),
+        triangle_offsets=np.array(tri_offsets, dtype=np.int64),
     )
 
 
