@@ -44,6 +44,7 @@ class ForestLayout:
     grove_positions: np.ndarray  # (G, 3)
     grove_angles: np.ndarray  # (G,)
     grove_scales: np.ndarray  # (G,)
+    grove_prototypes: np.ndarray | None = None  # (G,) index of each point instance's tree file; None: all the first
 
 
 def plan_forest(*, trees: int, grove: int, tree_radius: float, seed: int) -> ForestLayout:
@@ -87,9 +88,10 @@ def plan_forest(*, trees: int, grove: int, tree_radius: float, seed: int) -> For
     return ForestLayout(lift(tree_xy), tree_angles, tree_scales, lift(grove_xy), grove_angles, grove_scales)
 
 
-def plan_stand(*, side: int, tree_radius: float, seed: int) -> ForestLayout:
+def plan_stand(*, side: int, tree_radius: float, seed: int, prototypes: int = 1) -> ForestLayout:
     """A ``side`` x ``side`` stand for the PointInstancer: trunks on a square grid one crown diameter apart
-    (``2 * tree_radius``, so neighbouring crowns touch), random rotations about +Z, scale 1, no native trees.
+    (``2 * tree_radius``, so neighbouring crowns touch), random rotations about +Z, scale 1, no native trees;
+    with ``prototypes`` > 1, each instance one of that many tree files, at random.
 
     Instance ``i`` sits in row ``i // side``, column ``i % side``; the centre one (odd ``side``) is
     ``side * side // 2``.
@@ -103,8 +105,10 @@ def plan_stand(*, side: int, tree_radius: float, seed: int) -> ForestLayout:
     cells = np.array([(i % side, i // side) for i in range(n)], dtype=np.float64)
     xy = (cells - (side - 1) / 2.0) * 2.0 * tree_radius
     empty = np.zeros((0, 3))
+    angles = rng.uniform(0.0, 360.0, n)
+    which = rng.integers(0, prototypes, n) if prototypes > 1 else None  # drawn last: one tree file keeps its bytes
     return ForestLayout(empty, np.zeros(0), np.zeros(0), np.concatenate([xy, np.zeros((n, 1))], axis=1),
-                        rng.uniform(0.0, 360.0, n), np.ones(n))
+                        angles, np.ones(n), which)
 
 
 def tree_radius_of(tree_path: str | os.PathLike) -> float:
@@ -130,11 +134,14 @@ def relative_asset_path(target: Path, layer_path: Path) -> str:
     return rel if rel.startswith("../") else f"./{rel}"
 
 
-def write_forest(path: str | os.PathLike, tree_path: str | os.PathLike, layout: ForestLayout, *,
+def write_forest(path: str | os.PathLike, tree_path, layout: ForestLayout, *,
                  with_lights: bool = True, file_format: str | None = None, parameters: dict | None = None) -> Path:
-    """Write the forest stage at ``path``, referencing ``tree_path`` by a relative asset path."""
-    path, tree_path = Path(path), Path(tree_path)
-    asset = relative_asset_path(tree_path, path)
+    """Write the forest stage at ``path``, referencing ``tree_path`` (one file, or a list: the point instancer's
+    prototypes, ``layout.grove_prototypes`` choosing among them) by relative asset paths."""
+    tree_paths = [Path(t) for t in tree_path] if isinstance(tree_path, (list, tuple)) else [Path(tree_path)]
+    path = Path(path)
+    assets = [relative_asset_path(t, path) for t in tree_paths]
+    asset = assets[0]
     with make_tree.new_stage(path, file_format) as stage:
         layer = stage.GetRootLayer()
         layer.documentation = "Procedural forest from foliage-tools examples/make_forest.py"
@@ -155,13 +162,19 @@ def write_forest(path: str | os.PathLike, tree_path: str | os.PathLike, layout: 
 
         grove = UsdGeom.PointInstancer.Define(stage, "/World/Grove")
         UsdGeom.Scope.Define(stage, "/World/Grove/Prototypes")
-        proto = UsdGeom.Xform.Define(stage, "/World/Grove/Prototypes/TreeProto")
-        proto.GetPrim().GetReferences().AddReference(asset)
-        # instanceable too, so the grove shares the native prototype of /World/Trees and the tree is read once
-        proto.GetPrim().SetInstanceable(True)
-        grove.CreatePrototypesRel().SetTargets([proto.GetPath()])
+        targets = []
+        for k, a in enumerate(assets):
+            proto = UsdGeom.Xform.Define(stage, "/World/Grove/Prototypes/TreeProto" + (f"_{k}" if k else ""))
+            proto.GetPrim().GetReferences().AddReference(a)
+            # instanceable too, so the grove shares the native prototype of /World/Trees and the tree is read once
+            proto.GetPrim().SetInstanceable(True)
+            targets.append(proto.GetPath())
+        grove.CreatePrototypesRel().SetTargets(targets)
         n = layout.grove_positions.shape[0]
-        grove.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(n, dtype=np.int32)))
+        which = np.zeros(n) if layout.grove_prototypes is None else layout.grove_prototypes
+        if len(which) and int(np.max(which)) >= len(assets):
+            raise ValueError(f"the layout uses {int(np.max(which)) + 1} tree files, {len(assets)} given")
+        grove.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.asarray(which, dtype=np.int32)))
         grove.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(layout.grove_positions, dtype=np.float32)))
         half = np.radians(layout.grove_angles) / 2.0  # rotation about +Z: q = (cos a/2, 0, 0, sin a/2)
         grove.CreateOrientationsAttr(Vt.QuathArray([Gf.Quath(float(np.cos(h)), 0.0, 0.0, float(np.sin(h))) for h in half]))
@@ -183,7 +196,9 @@ def parser() -> argparse.ArgumentParser:
         description="Write a seeded forest: native instanceable references and a PointInstancer of one tree file, plus sun and sky.",
         epilog="Example: python examples/make_forest.py --tree examples/tree_small.usda --out examples/forest_small.usda",
     )
-    ap.add_argument("--tree", type=Path, default=HERE / "tree_small.usda", help="tree file to reference (default: tree_small.usda beside this script)")
+    ap.add_argument("--tree", type=Path, action="append", default=None,
+                    help="tree file to reference (default: tree_small.usda beside this script); with --stand, give it "
+                         "several times for a stand of several prototypes, each instance one of them at random")
     ap.add_argument("--trees", type=int, default=4, help="native instanceable trees under /World/Trees (default 4)")
     ap.add_argument("--grove", type=int, default=12, help="PointInstancer instances in /World/Grove (default 12)")
     ap.add_argument("--stand", type=int, default=0, metavar="N",
@@ -201,22 +216,29 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.trees < 0 or args.grove < 0 or args.seed < 0 or args.stand < 0:
         ap.error("--trees, --grove, --stand and --seed must be >= 0")
-    if not args.tree.is_file():
-        ap.error(f"tree file {args.tree} does not exist; write it first with examples/make_tree.py")
+    trees = args.tree or [HERE / "tree_small.usda"]
+    if len(trees) > 1 and not args.stand:
+        ap.error("several --tree files need --stand (the stand's point instancer chooses among them)")
+    for t in trees:
+        if not t.is_file():
+            ap.error(f"tree file {t} does not exist; write it first with examples/make_tree.py")
     try:
         make_tree.resolve_format(args.out, args.format)
-        radius = tree_radius_of(args.tree)
+        radius = max(tree_radius_of(t) for t in trees)
     except ValueError as exc:
         ap.error(str(exc))
+    rel = [relative_asset_path(t, args.out) for t in trees]
+    tree_param = ", ".join(rel)  # (a string: crate files cannot pack a list of strings in layer data)
     if args.stand:
-        layout = plan_stand(side=args.stand, tree_radius=radius, seed=args.seed)
-        params = {"tree": relative_asset_path(args.tree, args.out), "stand": args.stand, "seed": args.seed}
+        layout = plan_stand(side=args.stand, tree_radius=radius, seed=args.seed, prototypes=len(trees))
+        params = {"tree": tree_param, "stand": args.stand, "seed": args.seed}
     else:
         layout = plan_forest(trees=args.trees, grove=args.grove, tree_radius=radius, seed=args.seed)
-        params = {"tree": relative_asset_path(args.tree, args.out), "trees": args.trees, "grove": args.grove, "seed": args.seed}
-    path = write_forest(args.out, args.tree, layout, with_lights=not args.no_lights, file_format=args.format, parameters=params)
+        params = {"tree": tree_param, "trees": args.trees, "grove": args.grove, "seed": args.seed}
+    path = write_forest(args.out, trees if len(trees) > 1 else trees[0], layout, with_lights=not args.no_lights,
+                        file_format=args.format, parameters=params)
     print(f"wrote {path}: {len(layout.tree_positions)} instanceable trees + a PointInstancer of {len(layout.grove_positions)}, "
-          f"referencing @{relative_asset_path(args.tree, path)}@, {path.stat().st_size / 1e3:.1f} kB")
+          f"referencing {', '.join(f'@{relative_asset_path(t, path)}@' for t in trees)}, {path.stat().st_size / 1e3:.1f} kB")
     return 0
 
 
