@@ -231,6 +231,14 @@ def plan(scene: Path, resolution: int, bases: str, depth: str, rays_per_leaf: in
             times.add_row(*(f"{t[k]:.3g}" for k in ("density", "smax", "spp", "lb", "direct", "reference")),
                           f"{s['peak_memory_bytes'] / 1e9:.2f} GB")
             console.stdout.print(times)
+            if s["forest"] is not None:
+                f = s["forest"]
+                console.stdout.print(
+                    f"forest: {s['instances']:,} instances, {s['world_triangles']:,} placed triangles; the shadow rays "
+                    f"and gather trace {s['traced']} ({s['traced_triangles']:,} triangles, "
+                    f"{s['world_memory_bytes'] / 1e9:.2f} GB); the forest lattice has {f['nodes']:,} nodes "
+                    f"(~{f['seconds_estimate_per_stage']:.3g} s, once per bake); the reference would hold "
+                    f"{s['reference_memory_bytes'] / 1e9:.2f} GB (it traces every instance)")
 
         return execute(lambda progress: do_plan(scene, params), as_json=as_json, quiet=quiet, render=render)
 

@@ -24,6 +24,7 @@ from foliage_tools.pipeline.density import density_grid
 from foliage_tools.pipeline.direct import auto_samples
 from foliage_tools.pipeline.report import Report
 from foliage_tools.pipeline.spp import DEPTH_PATHS, depth_path
+from foliage_tools.pipeline.world import WORLD_MAX_TRIANGLES, world_triangles
 from foliage_tools.scene.read import read_scene
 
 #: All rates from one `make bench` on 2026-11-24 (session 4; AMD EPYC, 2 cores, numba triad 35 GB/s). The
@@ -91,25 +92,6 @@ class PlanParams:
             raise UsageError("--rays-per-leaf, --directions and --reference-paths must be >= 1.")
 
 
-def _forest_nodes(scene, cells_per_crown: int, max_nodes: int) -> int:
-    """Nodes of the forest lattice's stand grid (pipeline.forest): the instances' leaf-centre bounds at
-    ``cells_per_crown`` cells across the largest prototype, capped at ``max_nodes``."""
-    baked = [p for p in scene.prototypes if p.leaves.count]
-    crown = max(float(np.ptp(p.leaves.centers, axis=0).max()) for p in baked)
-    voxel = max(crown, 1e-9) / cells_per_crown
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    boxes = {i: (p.leaves.centers.min(axis=0), p.leaves.centers.max(axis=0)) for i, p in enumerate(scene.prototypes) if p.leaves.count}
-    for inst in scene.instances:
-        if inst.prototype not in boxes:
-            continue
-        a, b = boxes[inst.prototype]
-        corners = np.array([[x, y, z] for x in (a[0], b[0]) for y in (a[1], b[1]) for z in (a[2], b[2])])
-        w = corners @ inst.transform[:3, :3].T + inst.transform[:3, 3]
-        lo, hi = np.minimum(lo, w.min(axis=0)), np.maximum(hi, w.max(axis=0))
-    span = hi - lo + 2 * voxel
-    return int(min(np.prod(np.ceil(span / voxel) + 1), max_nodes))
-
-
 def plan(path: Path, params: PlanParams) -> Report:
     report = Report(command="plan", inputs=[str(path)])
     scene, warnings = read_scene(path)
@@ -155,8 +137,14 @@ def plan(path: Path, params: PlanParams) -> Report:
             "lower --resolution, or use --bases sun (1/18 of the memory)."
         )
     total_s["reference"] = params.reference_paths / REFERENCE_PATHS_PER_S
-    world_tris = sum(sum(len(m.triangles) for m in scene.prototypes[inst.prototype].meshes) for inst in scene.instances)
-    world_bytes = WORLD_BASE_BYTES + WORLD_BYTES_PER_TRIANGLE * world_tris
+    world_tris = world_triangles(scene)
+    # the bakes' shadow rays and gather trace the whole world, or above WORLD_MAX_TRIANGLES each prototype alone
+    lone = len(scene.instances) > 1 and world_tris > WORLD_MAX_TRIANGLES
+    instanced = sorted({inst.prototype for inst in scene.instances})
+    traced_tris = sum(sum(len(m.triangles) for m in scene.prototypes[i].meshes) for i in instanced) if lone else world_tris
+    traced_leaves = sum(scene.prototypes[i].leaves.count for i in instanced) if lone else leaves_total
+    world_bytes = WORLD_BASE_BYTES + WORLD_BYTES_PER_TRIANGLE * traced_tris
+    reference_bytes = WORLD_BASE_BYTES + WORLD_BYTES_PER_TRIANGLE * world_tris  # it always traces every instance
     peak = max(peak, world_bytes)
     forest = None
     if len(scene.instances) > 1:
@@ -165,18 +153,20 @@ def plan(path: Path, params: PlanParams) -> Report:
 
         if len(scene.instances) <= EQ31_MAX_INSTANCES:
             total_s["spp"] += len(scene.instances) * (len(scene.instances) - 1) * SPP_EQ31_S_PER_PAIR
-        nodes = _forest_nodes(scene, forest_mod.CELLS_PER_CROWN, forest_mod.MAX_NODES)
+        nodes = int(np.prod(forest_mod.stand_grid(scene).shape))
         forest = {"nodes": nodes, "seconds_estimate_per_stage": nodes * FOREST_S_PER_NODE}
         # smax, spp and lb each scale their instances by it (once per `foliage bake`)
         total_s["forest"] = nodes * FOREST_S_PER_NODE
-    # --direct rays (the default): in each of smax, spp and lb run alone, once in a bake; every leaf of every instance
-    direct_rays = leaves_total * auto_samples(leaves_total)
+    # --direct rays (the default): in each of smax, spp and lb run alone, once in a bake; every traced leaf
+    direct_rays = traced_leaves * auto_samples(traced_leaves)
     total_s["direct"] = direct_rays / DIRECT_RAYS_PER_S
     report.stats = {
         "resolution": params.resolution, "bases": params.bases, "depth": depth,
         "prototypes": protos, "instances": len(scene.instances), "leaves_total": int(leaves_total),
         "seconds_estimate": total_s, "peak_memory_bytes": peak, "direct_rays": int(direct_rays),
         "world_triangles": int(world_tris), "world_memory_bytes": world_bytes, "forest": forest,
+        "traced": "lone trees" if lone else "every instance", "traced_triangles": int(traced_tris),
+        "reference_memory_bytes": reference_bytes,
         "note": "seconds are estimates from rates measured on a 2-core machine (foliage_tools/pipeline/plan.py)",
     }
     return report.finish()

@@ -22,7 +22,7 @@ from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_ed
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.pipeline.instances import bake_instance_edits
-from foliage_tools.pipeline.world import World, assemble, prototype_means
+from foliage_tools.pipeline.world import World, assemble, prototype_means, world_triangles
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
 
@@ -133,7 +133,23 @@ class _ProgressAdapter:
         self.done = done
 
 
+def check_world_fits(scene: Scene) -> None:
+    """Refuse, before any work, a scene whose every-instance ray scene would not fit in the memory free now."""
+    from foliage_tools.pipeline.plan import WORLD_BASE_BYTES, WORLD_BYTES_PER_TRIANGLE, available_memory
+
+    tris = world_triangles(scene)
+    need = WORLD_BASE_BYTES + WORLD_BYTES_PER_TRIANGLE * tris
+    free = available_memory()
+    if need > free:
+        raise UsageError(
+            f"the Monte Carlo reference traces every instance: {len(scene.instances):,} instances place {tris:,} "
+            f"triangles, ~{need / 1e9:.1f} GB, more than the {free / 1e9:.1f} GB free now (its ray scene copies each "
+            f"instance; embreex has no instancing). Trace a smaller part of the forest (a stand around the trees you "
+            f"check) or free memory; `foliage plan` shows the figure.")
+
+
 def bake_reference(scene: Scene, sun: Sun, params: ReferenceParams, progress: Progress) -> ReferenceBake:
+    check_world_fits(scene)
     world = assemble(scene)
     inputs = reference.ReferenceInputs(
         triangles=world.triangles,

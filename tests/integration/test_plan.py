@@ -49,3 +49,40 @@ def test_plan_counts_every_instance_of_a_forest():
     assert st["forest"]["nodes"] > 16**3 and st["seconds_estimate"]["forest"] > 0
     alone = json.loads(foliage("plan", EXAMPLE, "--json").stdout)["stats"]
     assert alone["forest"] is None and "forest" not in alone["seconds_estimate"]
+
+
+def test_plan_of_a_forest_too_large_to_copy_traces_its_lone_trees(tmp_path):
+    # 55 x 55 instances of the example tree place ~16M triangles, above world.WORLD_MAX_TRIANGLES: the shadow rays
+    # and the gather trace the prototype alone (the forest lattice brings the stand), the reference every instance
+    import sys
+
+    from foliage_tools.pipeline.world import WORLD_MAX_TRIANGLES
+    from foliage_tools.scene.read import read_scene
+
+    sys.path.insert(0, str(EXAMPLE.parent))
+    from make_forest import plan_stand, tree_radius_of, write_forest
+
+    path = write_forest(tmp_path / "stand.usdc", EXAMPLE, plan_stand(side=55, tree_radius=tree_radius_of(EXAMPLE), seed=1))
+    st = json.loads(foliage("plan", path, "--json").stdout)["stats"]
+    tris = sum(len(m.triangles) for m in read_scene(EXAMPLE)[0].prototypes[0].meshes)
+    assert st["instances"] == 55 * 55 and st["world_triangles"] == 55 * 55 * tris > WORLD_MAX_TRIANGLES
+    assert st["traced"] == "lone trees" and st["traced_triangles"] == tris
+    assert st["direct_rays"] == 1500 * 1024  # the prototype's leaves at --direct-samples auto's most
+    assert st["reference_memory_bytes"] > 20 * st["world_memory_bytes"]  # 3025 copies against one (plus ~0.4 GB base)
+    assert st["forest"]["nodes"] > 16**3
+
+
+def test_the_reference_refuses_a_forest_whose_ray_scene_does_not_fit(monkeypatch):
+    from foliage_tools.errors import UsageError
+    from foliage_tools.geometry.sun import choose_sun
+    from foliage_tools.lighting.optics import parse_leaf_optics
+    from foliage_tools.pipeline import plan
+    from foliage_tools.pipeline.reference import ReferenceParams, bake_reference
+    from foliage_tools.pipeline.report import Silent
+    from foliage_tools.scene.read import read_scene
+
+    scene, _ = read_scene(EXAMPLE.with_name("forest_small.usda"))
+    monkeypatch.setattr(plan, "available_memory", lambda: 1e8)  # less than 16 instances' ray scene (~0.45 GB)
+    with pytest.raises(UsageError, match=r"traces every instance: 16 instances .* more than the 0\.1 GB free"):
+        bake_reference(scene, choose_sun(scene.lights, scene.up_axis, (0.0, 45.0), []),
+                       ReferenceParams(optics=parse_leaf_optics(None), paths=1000), Silent())
