@@ -5,7 +5,7 @@ Usage (the README's layer table)::
     python examples/make_layer.py --out /tmp/layer60.usda --sun 0,60
     python benchmarks/bench_layer_methods.py /tmp/layer60.usda 0.45,0.45 0,60
     python examples/make_layer.py --out /tmp/layer30.usda --sun 0,30
-    python benchmarks/bench_layer_methods.py /tmp/layer30.usda 0.1,0.1 0,30 [spp,sppg,spp-paper,lb-64,spp+gather,lb+gather]
+    python benchmarks/bench_layer_methods.py /tmp/layer30.usda 0.1,0.1 0,30 [spp,sppg,spp-paper,lb-64,spp+gather,sppg+gather,lb+gather]
 
 Arguments: the layer, --leaf-optics, --sun, and optionally the methods. The
 reference stops at 4 % per-leaf noise (a bin holds ~2000 leaves); bins are
@@ -37,7 +37,7 @@ def main(argv: list[str]) -> int:
         print(__doc__)
         return 2
     path, optics_s, sun_s = argv[0], argv[1], argv[2]
-    methods = argv[3].split(",") if len(argv) > 3 else ["spp", "sppg", "spp-paper", "lb-64", "spp+gather", "lb+gather"]
+    methods = argv[3].split(",") if len(argv) > 3 else ["spp", "sppg", "spp-paper", "lb-64", "spp+gather", "sppg+gather", "lb+gather"]
     optics = parse_leaf_optics(optics_s); sun_t = tuple(float(x) for x in sun_s.split(","))
     _, scene, sun = begin_bake("spp", Path(path), None, sun_t, Silent())
     t = time.perf_counter()
@@ -57,7 +57,7 @@ def main(argv: list[str]) -> int:
         if m.startswith("spp") or m == "sppg":
             model = "spp" if "paper" in m else "exact"
             b = bake_spp(scene, sun, SppParams(optics=optics, sun=sun_t, model=model), [], Silent())[0].result
-            e = (b.sppg if m.startswith("sppg") or m == "spp+gather" else b.spp).scattered
+            e = (b.sppg if m.startswith("sppg") else b.spp).scattered  # spp+gather: on SPP, sppg+gather: on SPPG
         elif m.startswith("lb"):
             res = 32 if m == "lb+gather" else int(m.split("-")[1])
             b = bake_lb(scene, sun, LBBakeParams(optics=optics, sun=sun_t, resolution=res), [], Silent())[0]

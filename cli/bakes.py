@@ -360,7 +360,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "term) and grid above.")
 @click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True,
               help="With --depth rays: origins per leaf, uniform over its area (seeded); more rays, less count noise (1/sqrt).")
-@gather_option("SPPG's scattered light", "primvars:foliage:sppg:scattered (spp with --no-gfactor)")
+@gather_option("SPP's (the exact slab's, with or without --gfactor)", "primvars:foliage:sppg:scattered (spp with --no-gfactor)")
 @direct_options
 @bake_options
 @common_options
