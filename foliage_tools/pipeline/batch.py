@@ -122,7 +122,7 @@ def run_batch(assets: list[Asset], outroot: Path, params: BatchParams, *, progre
         for p in plans:
             report.stats["assets"][p.asset.name] = {"input": str(p.asset.path), "action": "bake" if p.reason else "cached",
                                                     "reason": p.reason or "inputs, options and tool unchanged",
-                                                    "key": p.key.digest}
+                                                    "key": p.key.digest, "options": p.key.options}
         return report.finish()
     if todo:
         outroot.mkdir(parents=True, exist_ok=True)  # bake's own check names an unwritable place, per asset
@@ -203,7 +203,7 @@ def _entry(p: _Plan, fut, outroot: Path, attempts: int) -> dict:
     if fut.status == "finished":
         result = fut.result()
         entry.update(status=result["status"], seconds=result["seconds"], warnings=result["warnings"],
-                     error=result["error"], outputs=[_relative(o, outroot) for o in result["outputs"]])
+                     error=result["error"], worker=result["worker"], outputs=[_relative(o, outroot) for o in result["outputs"]])
     else:
         exc = fut.exception()
         kind = type(exc).__name__
@@ -281,10 +281,10 @@ def bake_asset(name: str, path: str, outdir: str, params: BakeParams, topic: str
     """The task, on a worker: ``run_bake`` of one asset. Never raises: a failure is a result with ``error`` set."""
     from foliage_tools.pipeline.bake import run_bake
 
-    _announce(topic, name)
+    worker = _announce(topic, name)
     _share_cores()
     started = time.perf_counter()
-    result = {"status": "failed", "seconds": 0.0, "outputs": [], "warnings": [], "error": None}
+    result = {"status": "failed", "seconds": 0.0, "outputs": [], "warnings": [], "error": None, "worker": worker}
     try:
         report = run_bake(Path(path), Path(outdir), params)
     except FoliageError as exc:
@@ -305,14 +305,16 @@ def bake_asset(name: str, path: str, outdir: str, params: BakeParams, topic: str
     return result
 
 
-def _announce(topic: str, name: str) -> None:
-    """Tell the client this asset started (its progress counts it as running; two starts mean a retry)."""
+def _announce(topic: str, name: str) -> str | None:
+    """Tell the client this asset started (its progress counts it as running; two starts mean a retry); the worker's address."""
     try:
         from distributed import get_worker
 
-        get_worker().log_event(topic, {"asset": name, "event": "started", "pid": os.getpid()})
+        worker = get_worker()
     except ValueError:  # not on a worker (called directly)
-        pass
+        return None
+    worker.log_event(topic, {"asset": name, "event": "started", "pid": os.getpid()})
+    return worker.address
 
 
 def _share_cores() -> None:
