@@ -102,8 +102,9 @@ def batch(inputs: tuple[Path, ...], outroot: Path, workers: int | None, schedule
     USD files; a file another one uses, such as a sublayer, belongs to that
     asset), or manifests (.toml): [[asset]] tables with path (relative to the
     manifest), an optional name and any `foliage bake` option by its long
-    name; top-level keys apply to all of a manifest's assets. Precedence: an
-    asset's own keys, the manifest's top-level keys, flags, --config.
+    name; top-level keys apply to all of a manifest's assets. Precedence,
+    first wins: an asset's own keys, the manifest's top-level keys, flags,
+    --config.
 
     Each asset bakes into OUTROOT/<name>/ (name: the file's stem) with the
     bake's guarantees: all of its files or none, a killed run finished or

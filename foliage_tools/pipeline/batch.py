@@ -126,6 +126,8 @@ def run_batch(assets: list[Asset], outroot: Path, params: BatchParams, *, progre
         return report.finish()
     if todo:
         outroot.mkdir(parents=True, exist_ok=True)  # bake's own check names an unwritable place, per asset
+    if plans:
+        recover(outroot, ["batch.json"], report.warnings)  # a record a killed run was renaming into place
     record = dict(previous)
     counts = Counts(total=len(plans))
     for p in plans:
@@ -135,9 +137,6 @@ def run_batch(assets: list[Asset], outroot: Path, params: BatchParams, *, progre
             record[p.asset.name] = p.entry
             counts.cached += 1
     if todo:
-        warnings: list[str] = []
-        recover(outroot, ["batch.json"], warnings)
-        report.warnings += warnings
         _bake_all(todo, outroot, params, record, counts, progress, report)
     if plans:
         write_record(outroot, record)

@@ -20,6 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 import pytest
 
@@ -32,6 +33,7 @@ SOURCES = {
     "blender_tree": ASSETS / "sapling_blendertree" / "blender_tree.usda",
 }
 NOTE = "tree_small_note.usda"
+SCHEMA = json.loads((REPO / "schemas" / "json" / "report.schema.json").read_text())
 
 
 def _env() -> dict:
@@ -147,6 +149,7 @@ def batch(*args, timeout=600) -> tuple[subprocess.CompletedProcess, dict]:
         report = json.loads(r.stdout)
     except json.JSONDecodeError:
         raise AssertionError(f"no JSON on stdout (exit {r.returncode}): {r.stdout[-2000:]}\n{r.stderr[-4000:]}") from None
+    jsonschema.validate(report, SCHEMA)
     return r, report
 
 
@@ -166,10 +169,11 @@ def test_batch_bakes_as_bake_does_caches_by_content_and_isolates_a_broken_asset(
     out = tmp_path / "out"
 
     # 1. a local cluster of 2 workers bakes the three as `foliage bake` does; the broken one fails alone
-    r, report = batch(*inputs.values(), broken, "-o", out, "--workers", "2")
+    r, report = batch(*inputs.values(), broken, "-o", out, "--workers", "2", "-v")
     assert r.returncode == 1, r.stderr
     assert statuses(report) == {"tree_small": "baked", "oak": "baked", "blender_tree": "baked", "broken": "failed"}
     assert report["stats"]["workers"] == 2
+    assert report["stats"]["dashboard"].startswith("http://") and f"Dask dashboard: {report['stats']['dashboard']}" in r.stderr
     error = report["stats"]["assets"]["broken"]["error"]
     assert error["code"] == 2 and "broken.usda" in error["message"]
     assert "failed: broken (exit 2)" in r.stderr and "broken.usda" in r.stderr
