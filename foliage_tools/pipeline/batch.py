@@ -126,8 +126,7 @@ def run_batch(assets: list[Asset], outroot: Path, params: BatchParams, *, progre
         return report.finish()
     if todo:
         outroot.mkdir(parents=True, exist_ok=True)  # bake's own check names an unwritable place, per asset
-    if plans:
-        recover(outroot, ["batch.json"], report.warnings)  # a record a killed run was renaming into place
+    recover(outroot, ["batch.json"], report.warnings)  # a record a killed run was renaming into place
     record = dict(previous)
     counts = Counts(total=len(plans))
     for p in plans:
@@ -137,14 +136,16 @@ def run_batch(assets: list[Asset], outroot: Path, params: BatchParams, *, progre
             record[p.asset.name] = p.entry
             counts.cached += 1
     if todo:
+        counts.queued = len(todo)
+        progress.update(counts)  # before the cluster starts, which takes seconds
         _bake_all(todo, outroot, params, record, counts, progress, report)
-    if plans:
-        write_record(outroot, record)
+    write_record(outroot, record)
     progress.update(counts)
     for p in plans:
         report.stats["assets"][p.asset.name] = p.entry
         report.outputs += [str(outroot / o) for o in p.entry.get("outputs", [])]
-        report.warnings += [f"{p.asset.name}: {w}" for w in p.entry.get("warnings", [])]
+        if p.reason is not None:  # a cached asset's warnings were reported when it baked (batch.json keeps them)
+            report.warnings += [f"{p.asset.name}: {w}" for w in p.entry.get("warnings", [])]
     report.outputs.append(str(outroot / "batch.json"))
     report.stats["counts"] = {"assets": counts.total, "baked": counts.done, "cached": counts.cached, "failed": counts.failed}
     return report.finish()
