@@ -281,17 +281,40 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
     run(body)
 
 
+def bake_job_options(fn):
+    """The options of one bake (``bake``, and ``batch`` for each of its assets)."""
+    for option in reversed((
+        click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True, help="Density and LB grid resolution."),
+        click.option("--with-reference", is_flag=True, help="Also trace the Monte Carlo reference and write bench.json / bench.png."),
+        click.option("--reference-paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
+                     help="Most reference sun paths (with --with-reference); it stops earlier at --reference-noise."),
+        click.option("--reference-noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,
+                     help="Reference per-leaf E_scattered noise at which tracing stops (with --with-reference)."),
+        direct_options,
+        bake_options,
+    )):
+        fn = option(fn)
+    return fn
+
+
+def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float, direct_mode: str,
+                direct_samples: int | None, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None):
+    """The ``BakeParams`` of the bake options' values."""
+    from foliage_tools.geometry.sun import parse_sun
+    from foliage_tools.pipeline.bake import BakeParams
+
+    return BakeParams(
+        optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
+        sun=parse_sun(sun) if sun is not None else None,
+        resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
+        reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples),
+    )
+
+
 @click.command()
 @SCENE
 @click.option("-o", "--output", "outdir", required=True, type=click.Path(path_type=Path, file_okay=False), help="Output directory (created if missing).")
-@click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True, help="Density and LB grid resolution.")
-@click.option("--with-reference", is_flag=True, help="Also trace the Monte Carlo reference and write bench.json / bench.png.")
-@click.option("--reference-paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
-              help="Most reference sun paths (with --with-reference); it stops earlier at --reference-noise.")
-@click.option("--reference-noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,
-              help="Reference per-leaf E_scattered noise at which tracing stops (with --with-reference).")
-@direct_options
-@bake_options
+@bake_job_options
 @common_options
 def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float,
          direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
@@ -305,17 +328,13 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
     Example:
       foliage bake examples/tree_small.usda -o out/bake --with-reference
     """
-    from foliage_tools.geometry.sun import parse_sun
-    from foliage_tools.pipeline.bake import BakeParams, run_bake
+    from foliage_tools.pipeline.bake import run_bake
 
     def body() -> int:
         setup_logging(verbose, quiet)
-        params = BakeParams(
-            optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
-            sun=parse_sun(sun) if sun is not None else None,
-            resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
-            reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples),
-        )
+        params = bake_params(resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
+                             reference_noise=reference_noise, direct_mode=direct_mode, direct_samples=direct_samples,
+                             sun=sun, leaf_optics=leaf_optics, wood_reflectance=wood_reflectance)
 
         def render(report) -> None:
             for name, st in report.stats["stages"].items():

@@ -38,6 +38,7 @@ def cli() -> None:
       foliage bake tree.usda -o baked/          # density, smax, spp, lb + preview
       foliage bench tree.usda --plot bench.png  # speed vs error against Monte Carlo
       foliage preview baked/tree.lb.usda -o tree.png --compare direct,lb,spp
+      foliage batch trees/ -o baked/                # many assets on Dask, content-hash cached
 
     Exit codes: 0 ok, 1 validation findings, 2 bad usage or input,
     3 internal error (crash log written), 130 interrupted.
@@ -247,9 +248,10 @@ def plan(scene: Path, resolution: int, bases: str, depth: str, rays_per_leaf: in
 
 def _add_commands() -> None:
     from foliage_tools.cli.bakes import bake, bench, lb, reference, smax, spp
+    from foliage_tools.cli.batch import batch
     from foliage_tools.cli.preview import preview
 
-    for command in (lb, spp, smax, reference, bench, bake, preview):
+    for command in (lb, spp, smax, reference, bench, bake, batch, preview):
         cli.add_command(command)
 
 

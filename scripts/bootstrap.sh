@@ -35,7 +35,7 @@ echo "bootstrap: installing foliage-tools and its dependencies into $VENV"
 "$VENV/bin/python" - <<'PY'
 import sys
 missing = []
-for mod in ("pyopenvdb", "pxr.Usd", "numba", "scipy", "embreex", "moderngl", "OpenImageIO", "fast_simplification", "foliage_tools.cli.main"):
+for mod in ("pyopenvdb", "pxr.Usd", "numba", "scipy", "embreex", "moderngl", "OpenImageIO", "fast_simplification", "distributed", "bokeh", "foliage_tools.cli.main"):
     try:
         __import__(mod)
     except Exception as exc:  # report every missing piece at once

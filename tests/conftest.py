@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import hashlib
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-ASSETS = REPO.parent / "shared" / "assets"
+# FOLIAGE_TEST_ASSETS: where they are when the checkout is not beside ../shared (a git worktree elsewhere)
+ASSETS = Path(os.environ.get("FOLIAGE_TEST_ASSETS") or REPO.parent / "shared" / "assets")
 OAK = ASSETS / "webots_oak" / "oak.usda"
 
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from foliage_tools.errors import OutputError
 from foliage_tools.scene.atomic import atomic_outputs, check_name_fits, check_writable, recover
+from foliage_tools.scene.dependencies import dependencies
 from foliage_tools.scene.integrity import locator, new_commit_id, seal, utc_now
 from foliage_tools.scene.schemas import LIGHTING_API, register
 from foliage_tools.scene.vdb import Grid, write_vdb
@@ -90,16 +91,7 @@ def input_files(input_path: Path) -> frozenset[Path]:
 
 @lru_cache(maxsize=8)
 def _input_files(path: Path, _mtime: int) -> frozenset[Path]:
-    from pxr import UsdUtils
-
-    try:
-        layers, assets, _unresolved = UsdUtils.ComputeAllDependencies(Sdf.AssetPath(str(path)))
-    except Exception:  # an unreadable input is reported by the reader, with its own message
-        return frozenset({path})
-    files = {Path(layer.realPath).resolve() for layer in layers if layer.realPath}
-    files.update(Path(a).resolve() for a in assets if a)
-    files.add(path)
-    return frozenset(files)
+    return dependencies(path)[0]
 
 
 def missing_inputs(input_path: Path) -> tuple[str, ...]:
@@ -114,13 +106,7 @@ def missing_inputs(input_path: Path) -> tuple[str, ...]:
 
 @lru_cache(maxsize=8)
 def _missing_inputs(path: Path, _mtime: int) -> tuple[str, ...]:
-    from pxr import UsdUtils
-
-    try:
-        _layers, _assets, unresolved = UsdUtils.ComputeAllDependencies(Sdf.AssetPath(str(path)))
-    except Exception:  # an unreadable input is reported by the reader, with its own message
-        return ()
-    return tuple(str(u) for u in unresolved)
+    return dependencies(path)[1]
 
 
 def check_output_path(input_path: Path, out: Path, extra_outputs=(), *, writes_grids: bool = True,

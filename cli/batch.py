@@ -1,0 +1,200 @@
+"""``foliage batch``: bake many assets on Dask distributed, skipping those whose inputs did not change."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+from rich.markup import escape
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from foliage_tools.cli import console
+from foliage_tools.cli.bakes import bake, bake_job_options, bake_params
+from foliage_tools.cli.common import _long_names, common_options, error_report, run, setup_logging
+from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED, FoliageError, UsageError
+
+#: The bake options an asset of a manifest may set (every option of `foliage bake` but its output and output format).
+_NOT_PER_ASSET = {"outdir", "as_json", "quiet", "verbose"}
+_BAKE_PARAMS = ("resolution", "with_reference", "reference_paths", "reference_noise", "direct_mode", "direct_samples",
+                "sun", "leaf_optics", "wood_reflectance")
+
+
+class _Bar:
+    """The batch's progress: a rich bar on stderr (assets finished of all), with baked / cached / running / failed."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled and console.stderr.is_terminal
+        self._progress = None
+        self._task = None
+        self._last = None
+
+    def __enter__(self) -> "_Bar":
+        if self.enabled:
+            self._progress = Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                                      TimeElapsedColumn(), console=console.stderr, transient=True)
+            self._progress.__enter__()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._progress is not None:
+            self._progress.__exit__(*exc)
+
+    def update(self, c) -> None:
+        text = f"{c.done} baked, {c.cached} cached, {c.running} running, {c.queued} queued, {c.failed} failed"
+        if self._progress is None:
+            if text != self._last:  # no bar (not a terminal, or -q): the changes still reach a log (-v)
+                logging.getLogger("foliage.batch").info(text)
+            self._last = text
+            return
+        if self._task is None:
+            self._task = self._progress.add_task(text, total=c.total)
+        self._progress.update(self._task, description=text, completed=c.done + c.cached + c.failed)
+
+
+def _asset(spec, base, flags: dict):
+    """An ``Asset`` of a spec: the batch's options (``base``, ``flags``) with a manifest's own keys over them."""
+    from foliage_tools.pipeline.batch import Asset
+
+    if not spec.options:
+        return Asset(name=spec.name, path=spec.path, params=base)
+    known = {k: v for k, v in _long_names(bake).items() if v not in _NOT_PER_ASSET}
+    values = {}
+    for key, value in spec.options.items():
+        name = key.replace("-", "_")
+        if name not in known:
+            listed = ", ".join(sorted({k.replace("_", "-") for k in known}))
+            raise UsageError(f"{spec.where}: unknown key {key!r}; an asset takes the options of `foliage bake`: {listed}.")
+        values[known[name]] = value
+    try:
+        ctx = bake.make_context("bake", [str(spec.path), "-o", "."], default_map={**flags, **values})
+    except click.ClickException as exc:
+        raise UsageError(f"{spec.where}: {exc.format_message()}") from None
+    ctx.meta["foliage.config"] = str(spec.manifest)  # names the manifest in errors of the values it set
+    try:
+        with ctx:
+            params = bake_params(**{k: ctx.params[k] for k in _BAKE_PARAMS})
+    except FoliageError as exc:
+        raise UsageError(f"{spec.where}: {exc}") from None
+    return Asset(name=spec.name, path=spec.path, params=params)
+
+
+@click.command()
+@click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--output", "outroot", required=True, type=click.Path(path_type=Path, file_okay=False),
+              help="Output root: each asset bakes into OUTROOT/<name>/ (created if missing); OUTROOT/batch.json records them.")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Local cluster: worker processes, one bake each at a time, numba's threads sharing the cores among "
+                   "them [default: one per core, at most one per asset to bake].")
+@click.option("--scheduler", metavar="tcp://HOST:PORT", default=None,
+              help="Run on an existing Dask cluster (a farm) instead of a local one. Its workers need foliage-tools and "
+                   "the same paths to inputs and OUTROOT; start them with `dask worker tcp://HOST:PORT --nthreads 1`.")
+@click.option("--dry-run", is_flag=True, help="Say which assets would bake and why, from the cache; bake and write nothing.")
+@click.option("--force", is_flag=True, help="Bake every asset, even those the cache says are unchanged.")
+@bake_job_options
+@common_options
+def batch(inputs: tuple[Path, ...], outroot: Path, workers: int | None, scheduler: str | None, dry_run: bool, force: bool,
+          as_json: bool, quiet: bool, verbose: int, **bake_values) -> None:
+    """Bake many assets: the stages of `foliage bake` for each, on Dask distributed, cached by content.
+
+    INPUTS are USD files (.usd/.usda/.usdc/.usdz), directories (searched for
+    USD files; a file another one uses, such as a sublayer, belongs to that
+    asset), or manifests (.toml): [[asset]] tables with path (relative to the
+    manifest), an optional name and any `foliage bake` option by its long
+    name; top-level keys apply to all of a manifest's assets. Precedence,
+    first wins: an asset's own keys, the manifest's top-level keys, flags,
+    --config.
+
+    Each asset bakes into OUTROOT/<name>/ (name: the file's stem) with the
+    bake's guarantees: all of its files or none, a killed run finished or
+    cleaned up by the next one. One task per asset runs on a local cluster
+    (--workers) or a farm (--scheduler); a failing asset (bad input, a
+    crash, its worker killed) fails alone and the others go on.
+
+    \b
+    Cache: an asset is skipped ("cached") when the SHA-256 of every file its
+    stage reads (the whole layer stack, references, payloads, .vdb grids,
+    textures), its options, its leaf optics and the tool are those of its last
+    successful bake and its outputs are still there. Editing a sublayer or a
+    texture rebakes the assets that read it, and only those; touching a file
+    (its time only) rebakes nothing.
+
+    \b
+    OUTROOT/batch.json (rewritten atomically after every asset, so a batch
+    run again resumes where it stopped), per asset: status (baked, cached,
+    failed), key, seconds, outputs, warnings, error (code, type, message),
+    attempts, and the file hashes and options of its key.
+
+    \b
+    Exit codes: 0 every asset baked or cached; 1 any asset failed (each
+    reported with its message; the others are written); 2 bad usage or
+    inputs (nothing baked); 130 interrupted (finished assets stay recorded).
+
+    \b
+    Examples:
+      foliage batch examples/tree_small.usda ../shared/assets/ -o out/batch --resolution 32
+      foliage batch trees.toml -o out/batch --dry-run
+      foliage batch trees/ -o /farm/out/batch --scheduler tcp://10.0.0.5:8786 -v   # -v: the Dask dashboard address
+    """
+    from foliage_tools.pipeline.batch import BatchParams, run_batch
+    from foliage_tools.pipeline.batch_inputs import collect
+
+    ctx = click.get_current_context()
+
+    def body() -> int:
+        setup_logging(verbose, quiet)
+        params = BatchParams(workers=workers, scheduler=scheduler, dry_run=dry_run, force=force)
+        base = bake_params(**{k: bake_values[k] for k in _BAKE_PARAMS})  # the flags' errors are named as `bake` names them
+        flags = {k: bake_values[k] for k in _BAKE_PARAMS
+                 if ctx.get_parameter_source(k) not in (click.core.ParameterSource.DEFAULT, None)}
+        assets = [_asset(spec, base, flags) for spec in collect(list(inputs), outroot)]
+        try:
+            with _Bar(enabled=not (quiet or as_json or dry_run)) as bar:
+                report = run_batch(assets, outroot, params, progress=bar)
+        except KeyboardInterrupt:
+            message = (f"interrupted; the assets finished so far are recorded in @{outroot / 'batch.json'}@: run the same "
+                       "command again to go on from there.")
+            console.stderr.print(escape(message), highlight=False, soft_wrap=True)
+            if as_json:
+                console.print_json(error_report("batch", [str(i) for i in inputs], 0.0, EXIT_INTERRUPTED, "Interrupted", message))
+            return EXIT_INTERRUPTED
+        entries = report.stats["assets"]
+        failed = [name for name, e in entries.items() if e.get("status") == "failed"]
+        if as_json:
+            console.print_json(report.as_json())
+        elif not quiet:
+            console.warn(report.warnings, quiet)
+            _render(report, dry_run)
+        for name in failed:
+            e = entries[name]["error"]
+            console.stderr.print(f"[red]failed:[/red] {escape(name)} (exit {e['code']}): {escape(e['message'])}",
+                                 highlight=False, markup=True, soft_wrap=True)
+        return EXIT_FINDINGS if failed else 0
+
+    run(body)
+
+
+def _render(report, dry_run: bool) -> None:
+    s = report.stats
+    if dry_run:
+        table = Table(title="batch --dry-run: nothing is baked or written")
+        for col in ("asset", "would", "why"):
+            table.add_column(col, overflow="fold")
+        for name, e in s["assets"].items():
+            table.add_row(escape(name), e["action"], escape(e["reason"]))
+        console.stdout.print(table)
+        return
+    if s["workers"] is None:
+        where = "no cluster (nothing to bake)"
+    else:
+        where = f"{s['scheduler']} ({s['workers']} workers)" if s["scheduler"] else f"a local cluster of {s['workers']} worker(s)"
+    c = s["counts"]
+    table = Table(title=f"batch: {c['baked']} baked, {c['cached']} cached, {c['failed']} failed in {report.seconds:.1f} s on {where}")
+    for col in ("asset", "status", "seconds", "result or error"):
+        table.add_column(col, justify="right" if col == "seconds" else "left", overflow="fold")
+    for name, e in s["assets"].items():
+        outcome = e["error"]["message"] if e.get("error") else next((o for o in e["outputs"] if o.endswith(".lb.usda")), "")
+        table.add_row(escape(name), e["status"], f"{e['seconds']:.1f}", escape(outcome))
+    console.stdout.print(table)
+    console.stdout.print(f"wrote {report.outputs[-1]}", highlight=False, soft_wrap=True)
