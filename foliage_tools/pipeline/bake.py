@@ -47,6 +47,10 @@ class BakeParams:
     """``--direct`` for every bake stage."""
 
 
+#: ``--lod`` of the bake's preview of a forest above ``world.WORLD_MAX_TRIANGLES``.
+PREVIEW_LOD = 0.25
+
+
 def _stage(name: str, fn, *args, **kwargs):
     try:
         return fn(*args, **kwargs)
@@ -139,12 +143,24 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) 
     # primvars exist only on editable prototypes (a forest of native instances has none: direct light only)
     from foliage_tools.scene.read import read_scene
 
-    editable = any(p.editable and p.leaves.count for p in read_scene(path)[0].prototypes)
+    from foliage_tools.pipeline.world import WORLD_MAX_TRIANGLES, world_triangles
+
+    scene = read_scene(path)[0]
+    editable = any(p.editable and p.leaves.count for p in scene.prototypes)
+    # a forest too large to copy for the rays is also too large to draw in full on a software rasteriser (10 000
+    # trees: the sky pass alone ran past 10 minutes): far trees thinned, no sky occlusion, one sample per pixel
+    big = world_triangles(scene) > WORLD_MAX_TRIANGLES
+    light = {"lod": PREVIEW_LOD, "sky_samples": 0, "samples": 1} if big else {}
     stages["preview"] = _stage(
         "preview", run_preview, lb_out, work / f"{stem}.png",
-        PreviewParams(compare=("direct", "lb", "spp", "smax") if editable else ("direct",), size=(512, 512), sun=params.sun),
+        PreviewParams(compare=("direct", "lb", "spp", "smax") if editable else ("direct",), size=(512, 512), sun=params.sun,
+                      **light),
         progress=progress,
     )
+    if big:
+        stages["preview"].warnings.append(
+            f"the forest places {world_triangles(scene):,} triangles: its preview is drawn with --lod {PREVIEW_LOD} "
+            "--sky-samples 0 --samples 1; `foliage preview` of the bake draws it in full.")
     if not editable:
         stages["preview"].warnings.append(
             "every prototype is a native instance, so no leaf mesh holds the bakes' per-leaf primvars: the preview shows "

@@ -158,7 +158,11 @@ def stand_grid(scene: Scene) -> GridSpec:
     span = np.ptp(corners, axis=0) + 2 * voxel
     if np.prod(np.ceil(span / voxel) + 1) > MAX_NODES:
         voxel = float((np.prod(span) / MAX_NODES) ** (1 / 3))
-    return _grid_over(corners, voxel)
+    grid = _grid_over(corners, voxel)
+    while np.prod(grid.shape) > MAX_NODES:  # a flat stand: its few vertical cells and margins round up
+        voxel *= 1.05
+        grid = _grid_over(corners, voxel)
+    return grid
 
 
 def _forest_light(scene: Scene, sun: Sun, optics: LeafOptics, tolerance: float) -> ForestLight:

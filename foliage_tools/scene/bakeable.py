@@ -123,7 +123,17 @@ def instancer_problems(prim: Usd.Prim, world: np.ndarray, path: str) -> Iterator
     if xforms is None:
         return
     mask = pi.ComputeMaskAtTime(t)  # instances deactivated by inactiveIds are not read, so not checked
-    bad = [i for i, xf in enumerate(xforms) if (not mask or mask[i]) and _bad_scale(_scales(np.asarray(world) @ np.array(xf, dtype=np.float64).T))]
+    m = np.asarray(world, dtype=np.float64) @ np.transpose(np.array(xforms, dtype=np.float64).reshape(-1, 4, 4), (0, 2, 1))
+    lin = m[:, :3, :3]
+    ok = np.all(np.isfinite(lin.reshape(len(lin), -1)), axis=1)
+    s = np.full((len(lin), 3), np.nan)
+    with np.errstate(all="ignore"):
+        if ok.any():
+            s[ok] = np.linalg.svd(lin[ok], compute_uv=False)  # the singular values of every instance at once
+    good = np.all(np.isfinite(s), axis=1) & (np.nanmin(np.where(np.isfinite(s), s, np.inf), axis=1) >= MIN_SCALE) \
+        & (np.nanmax(np.where(np.isfinite(s), s, -np.inf), axis=1) <= MAX_SCALE)
+    active = np.ones(len(lin), bool) if not mask else np.asarray(mask, dtype=bool)
+    bad = np.flatnonzero(active & ~good).tolist()
     if bad:
         yield Problem(
             "transforms",

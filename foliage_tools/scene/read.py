@@ -270,11 +270,10 @@ class _Reader:
                 if key not in self.keys:
                     self.keys[key] = self.read_prototype(p, path=str(target), kind="pointinstancer", root_xform=np.eye(4))
             proto_ids[j] = self.keys[key]
-        for i, (pidx, xf) in enumerate(zip(proto_indices, xforms)):
-            if not mask[i] or int(pidx) not in proto_ids:
-                continue
-            m = world @ _matrix(xf)
-            self.instances.append(Instance(prototype=proto_ids[int(pidx)], path=f"{prim.GetPath()}[{i}]", transform=m))
+        mats = world @ np.transpose(np.array(xforms, dtype=np.float64).reshape(-1, 4, 4), (0, 2, 1))  # all at once
+        base = str(prim.GetPath())
+        for i in np.flatnonzero(mask & np.isin(proto_indices, list(proto_ids))):
+            self.instances.append(Instance(prototype=proto_ids[int(proto_indices[i])], path=f"{base}[{i}]", transform=mats[i]))
 
     def light(self, prim: Usd.Prim) -> None:
         m = _matrix(self.xf.GetLocalToWorldTransform(prim))
