@@ -23,7 +23,7 @@ from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import density_grid
 from foliage_tools.pipeline.direct import auto_samples
 from foliage_tools.pipeline.report import Report
-from foliage_tools.pipeline.spp import DEPTH_PATHS, depth_path
+from foliage_tools.pipeline.spp import DEPTH_PATHS, SPP_MAX_PLACEMENTS, depth_path
 from foliage_tools.pipeline.world import WORLD_MAX_TRIANGLES, world_triangles
 from foliage_tools.scene.read import read_scene
 
@@ -54,8 +54,16 @@ DIRECT_RAYS_PER_S = 1.2e6
 #: stand of it, 5 268 -> 526 800 triangles: 384 -> 781 MB; 2026-12-02).
 WORLD_BASE_BYTES, WORLD_BYTES_PER_TRIANGLE = 3.8e8, 760.0
 #: The forest lattice (pipeline.forest), seconds per node of the stand's grid, both solves and the exact first
-#: order (10 x 10 stand of tree_small, 155 x 155 x 18 nodes: 28 s on the loaded 2-core host, 2026-12-02).
-FOREST_S_PER_NODE = 6.5e-5
+#: order at its tolerance and directions (benchmarks/bench_forest.py, 100 x 100 stand, 4.0M nodes: ~55 s of the
+#: smax stage's 58.6 s, 2026-12-02).
+FOREST_S_PER_NODE = 1.4e-5
+#: LB per node beside the sweeps: density, the exact beam and first-collision source, sampling (~1.2e-5 s), and the
+#: exact first order of scattering (--single-scatter exact, ~1.1e-5 s): tree_small at 64, 241 560 nodes, 3.6-4.4 s
+#: with the lattice's own first order and 6.7 s with the exact one (2026-12-02).
+LB_S_PER_NODE, LB_EXACT_FIRST_ORDER_S_PER_NODE = 1.2e-5, 1.1e-5
+#: SPP/SPPG per leaf and instance solved (pipeline.spp.SPP_MAX_PLACEMENTS at most), 16 directions, grid depths
+#: (bench_forest.py: 3 prototypes x 32 instances of 5k/10k/20k leaves in 73.9 s, 2026-12-02).
+SPP_S_PER_LEAF_PLACEMENT = 6.3e-5
 #: shinya2013 eq. (31) neighbour depths: seconds per instance pair (issue #16: 3.3-3.7 ms).
 SPP_EQ31_S_PER_PAIR = 3.5e-3
 
@@ -109,13 +117,15 @@ def plan(path: Path, params: PlanParams) -> Report:
         nodes = int(np.prod(grid.shape))
         rhs = 3 * (18 if params.bases == "all" else 1)
         sweeps = LB_SWEEPS_PER_EDGE * max(grid.shape)
-        lb_s = sweeps * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW)
+        lb_s = sweeps * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW) + nodes * LB_S_PER_NODE
+        if params.bases == "sun":
+            lb_s += nodes * LB_EXACT_FIRST_ORDER_S_PER_NODE
         # the sun bake's first-collision beam arrays and single-scattering correction (pipeline.lb.bake_prototype)
         lb_bytes = memory_bytes(grid.shape, rhs, PLAIN_ITERATION_FIELDS + (0.9 if params.bases == "sun" else 0.0))
         fast = n >= AUTO_FAST_THRESHOLD
         smax_s = n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S
         instances = len(scene.instances_of(i))
-        spp_s = n * DENSITY_S_PER_LEAF
+        spp_s = n * DENSITY_S_PER_LEAF + min(max(instances, 1), SPP_MAX_PLACEMENTS) * n * SPP_S_PER_LEAF_PLACEMENT
         if depth == "rays":
             spp_s += instances * n * params.rays_per_leaf * (2 * params.directions + 2) / SPP_RAYS_PER_S
         est = {"density": n * DENSITY_S_PER_LEAF, "smax": smax_s, "spp": spp_s, "lb": lb_s}
@@ -153,8 +163,12 @@ def plan(path: Path, params: PlanParams) -> Report:
 
         if len(scene.instances) <= EQ31_MAX_INSTANCES:
             total_s["spp"] += len(scene.instances) * (len(scene.instances) - 1) * SPP_EQ31_S_PER_PAIR
-        nodes = int(np.prod(forest_mod.stand_grid(scene).shape))
-        forest = {"nodes": nodes, "seconds_estimate_per_stage": nodes * FOREST_S_PER_NODE}
+        shape = forest_mod.stand_grid(scene).shape
+        nodes = int(np.prod(shape))
+        # the stand's sun solve (3 right-hand sides) with its beam arrays and exact first order, as a tree's
+        forest_bytes = memory_bytes(shape, 3, PLAIN_ITERATION_FIELDS + 0.9)
+        forest = {"nodes": nodes, "seconds_estimate_per_stage": nodes * FOREST_S_PER_NODE, "memory_bytes": forest_bytes}
+        peak = max(peak, forest_bytes)
         # smax, spp and lb each scale their instances by it (once per `foliage bake`)
         total_s["forest"] = nodes * FOREST_S_PER_NODE
     # --direct rays (the default): in each of smax, spp and lb run alone, once in a bake; every traced leaf
