@@ -251,6 +251,11 @@ class _Reader:
         proto_indices = np.asarray(proto_indices, dtype=np.int64)
         self.instancer_sizes[str(prim.GetPath())] = int(proto_indices.size)
         mask = np.asarray(pi.ComputeMaskAtTime(t) or [True] * len(proto_indices), dtype=bool)
+        # invisibleIds hides instances from renderers (UsdGeomPointInstancer): they neither receive nor block light
+        invisible = np.asarray(pi.GetInvisibleIdsAttr().Get(t) or [], dtype=np.int64)
+        ids = np.asarray(pi.GetIdsAttr().Get(t) or np.arange(len(proto_indices)), dtype=np.int64)
+        if invisible.size and ids.size == mask.size:
+            mask &= ~np.isin(ids, invisible)
         world = _matrix(self.xf.GetLocalToWorldTransform(prim))
         _refuse(list(bakeable.instancer_problems(prim, world, self.path)))
         proto_ids: dict[int, int] = {}

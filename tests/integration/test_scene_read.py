@@ -116,6 +116,18 @@ def test_instances_share_one_prototype_read(tmp_path):
     assert len([i for i in scene.instances if "Grove" in i.path]) == 4
 
 
+def test_invisible_point_instances_are_left_out_like_inactive_ones(tmp_path):
+    from pxr import Usd, UsdGeom
+
+    path = _forest(tmp_path)
+    stage = Usd.Stage.Open(str(path))
+    UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Grove")).InvisibleIds([3])  # (no ids: index = id)
+    stage.GetRootLayer().Save()
+    scene, _ = read_scene(path)
+    grove = sorted(i.path for i in scene.instances if "Grove" in i.path)
+    assert grove == ["/World/Grove[0]", "/World/Grove[2]", "/World/Grove[4]"]  # 1 inactive, 3 invisible
+
+
 def test_instance_transforms_place_leaves_in_the_world(tmp_path):
     scene, _ = read_scene(_forest(tmp_path))
 
