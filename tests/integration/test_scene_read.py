@@ -121,7 +121,7 @@ def test_invisible_point_instances_are_left_out_like_inactive_ones(tmp_path):
 
     path = _forest(tmp_path)
     stage = Usd.Stage.Open(str(path))
-    UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Grove")).InvisibleIds([3])  # (no ids: index = id)
+    UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Grove")).InvisIds([3], Usd.TimeCode.Default())  # (no ids: index = id)
     stage.GetRootLayer().Save()
     scene, _ = read_scene(path)
     grove = sorted(i.path for i in scene.instances if "Grove" in i.path)
