@@ -290,11 +290,15 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
               help="Most reference sun paths (with --with-reference); it stops earlier at --reference-noise.")
 @click.option("--reference-noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,
               help="Reference per-leaf E_scattered noise at which tracing stops (with --with-reference).")
+@click.option("--portable", is_flag=True,
+              help="Write the input, flattened into one layer, into OUTDIR (NAME.input.usda, its textures and other files "
+                   "copied beside it) and bake that, so OUTDIR can be moved or shipped on its own. Without it the first "
+                   "layer sublayers the input by a relative path, and OUTDIR moves only together with the input.")
 @direct_options
 @bake_options
 @common_options
 def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float,
-         direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+         portable: bool, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
          as_json: bool, quiet: bool, verbose: int) -> None:
     """The main job: density, s_max, SPP and LB bakes, a preview (and a speed-vs-error report) into OUTDIR.
 
@@ -302,8 +306,9 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
     (OUTDIR/NAME.lb.usda) holds the whole bake over the untouched input.
 
     \b
-    Example:
+    Examples:
       foliage bake examples/tree_small.usda -o out/bake --with-reference
+      foliage bake examples/tree_small.usda -o out/ship --portable   # a folder that can move
     """
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.bake import BakeParams, run_bake
@@ -314,7 +319,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
-            reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples),
+            reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples), portable=portable,
         )
 
         def render(report) -> None:

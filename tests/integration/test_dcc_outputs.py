@@ -124,3 +124,59 @@ def test_tool_metadata_is_authored_custom(baked):
     # the schema still applies and still types them
     assert stage.GetPrimAtPath("/Tree").HasAPI("FoliageEnvelopeAPI")
     assert stage.GetPrimAtPath("/Tree/FoliageLighting").GetAttribute("foliage:resolution").GetTypeName() == "int3"
+
+
+def test_validate_warns_when_a_bake_folder_cannot_move_on_its_own(baked):
+    from foliage_tools.scene.validate import validate
+
+    _, final = baked
+    found = [f for f in validate(final) if f.rule == "portable-folder"]
+    # only the density layer sublayers the input, by a path that climbs out of the folder
+    assert len(found) == 1 and found[0].severity == "warning"
+    assert "tree_small.density.usda" in found[0].message and "--portable" in found[0].message
+
+
+def test_a_portable_bake_folder_still_opens_whole_after_a_move(tmp_path):
+    """--portable flattens the input (sublayers and all) into the folder and copies the files it names."""
+    import shutil
+
+    from pxr import Sdf, Usd, UsdVol
+
+    from foliage_tools.scene.validate import validate
+
+    # an input that is more than one file: a layer in its own folder that sublayers the example and names a texture
+    src = tmp_path / "asset"
+    (src / "tex").mkdir(parents=True)
+    (src / "tex" / "leaf.png").write_bytes(b"\x89PNG not really")
+    layer = Sdf.Layer.CreateNew(str(src / "tree.usda"))
+    layer.subLayerPaths.append(str(EXAMPLE))
+    layer.defaultPrim = "Tree"
+    layer.pseudoRoot.SetInfo("upAxis", "Z")
+    layer.pseudoRoot.SetInfo("metersPerUnit", 1.0)
+    layer.Save()
+    stage = Usd.Stage.Open(layer)
+    stage.SetEditTarget(layer)
+    stage.OverridePrim("/Tree/Leaves").CreateAttribute("test:texture", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath("./tex/leaf.png"))
+    layer.Save()
+    del stage
+
+    out = tmp_path / "out"
+    report = run_bake(src / "tree.usda", out, BakeParams(optics=parse_leaf_optics(None), resolution=8,
+                                                         direct=DirectChoice(mode="volume"), portable=True))
+    assert str(out / "tree.input.usda") in report.outputs and str(out / "tree.input.leaf.png") in report.outputs
+    moved = tmp_path / "elsewhere" / "moved"
+    moved.parent.mkdir()
+    shutil.move(out, moved)
+    shutil.rmtree(src)  # the input is gone too
+    final = moved / "tree.lb.usda"
+    stage = Usd.Stage.Open(str(final))
+    for prim in ("/Tree", "/Tree/Leaves", "/Tree/Wood", "/Tree/FoliageLighting", "/Tree/FoliageLighting/density"):
+        assert stage.GetPrimAtPath(prim).IsValid(), prim
+    assert len(stage.GetPrimAtPath("/Tree/Leaves").GetAttribute("points").Get()) > 1000
+    tex = stage.GetPrimAtPath("/Tree/Leaves").GetAttribute("test:texture").Get()
+    assert tex.path == "./tree.input.leaf.png" and Path(tex.resolvedPath) == moved / "tree.input.leaf.png"
+    assert set(UsdVol.Volume(stage.GetPrimAtPath("/Tree/FoliageLighting")).GetFieldPaths()) == {
+        "density", "woodFraction", "sppGFactor", "sppDepth", "sppThickness", "lbSun"}
+    findings = validate(final)
+    assert not [f for f in findings if f.severity == "error"], findings
+    assert not [f for f in findings if f.rule == "portable-folder"]
