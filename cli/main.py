@@ -239,9 +239,10 @@ def plan(scene: Path, resolution: int, bases: str, depth: str, rays_per_leaf: in
 
 def _add_commands() -> None:
     from foliage_tools.cli.bakes import bake, bench, lb, reference, smax, spp
+    from foliage_tools.cli.importer import import_model
     from foliage_tools.cli.preview import preview
 
-    for command in (lb, spp, smax, reference, bench, bake, preview):
+    for command in (lb, spp, smax, reference, bench, bake, preview, import_model):
         cli.add_command(command)
 
 
