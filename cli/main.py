@@ -33,6 +33,7 @@ def cli() -> None:
 
     \b
     Typical pipeline:
+      foliage import tree.obj -o tree.usda      # a mesh file (OBJ, PLY, glTF) into a tree asset
       foliage inspect tree.usda                 # what the bakes will see
       foliage validate tree.usda --strict       # CI asset check
       foliage bake tree.usda -o baked/          # density, smax, spp, lb + preview
