@@ -18,7 +18,7 @@ from rich.table import Table
 
 from foliage_tools import __version__
 from foliage_tools.cli import common, console
-from foliage_tools.cli.common import OUT, SCENE, common_options, execute, run, setup_logging
+from foliage_tools.cli.common import OUT, SCENE, common_options, execute, run, setup_logging, volume_purpose_option
 from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED
 
 
@@ -145,8 +145,10 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
 @click.option("--method", type=click.Choice(["area", "subgrid"]), default="area", show_default=True,
               help="area: exact leaf area per voxel / voxel volume (leaf-area density, 1/unit). "
                    "subgrid: geist2008 sec. 4.2 heuristic, fraction of 27 sub-cells touched (0..1).")
+@volume_purpose_option
 @common_options
-def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | None, method: str, as_json: bool, quiet: bool, verbose: int) -> None:
+def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | None, method: str, volume_purpose: str,
+            as_json: bool, quiet: bool, verbose: int) -> None:
     """Voxelize each prototype's leaves into a density grid and a wood-fraction grid.
 
     Writes OUT (a layer that sublayers SCENE) with primvars:foliage:leafId on
@@ -163,7 +165,7 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
 
     def body() -> int:
         setup_logging(verbose, quiet)
-        params = DensityParams(voxel_size=voxel_size, resolution=resolution, method=method)
+        params = DensityParams(voxel_size=voxel_size, resolution=resolution, method=method, volume_purpose=volume_purpose)
 
         def render(report) -> None:
             table = Table(title=f"density ({method}) in {report.seconds:.2f} s")

@@ -45,6 +45,8 @@ class BakeParams:
     """Per-leaf E_scattered noise at which the reference stops (None: trace ``reference_paths``)."""
     direct: DirectChoice = DirectChoice()
     """``--direct`` for every bake stage."""
+    volume_purpose: str = "default"
+    """``--volume-purpose`` of the FoliageLighting volumes every stage writes."""
     portable: bool = False
     """Bake a flattened copy of the input written into OUTDIR (``scene.portable``), so the folder can move on its own."""
 
@@ -139,14 +141,14 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
         _, scene, sun = begin_bake("bake", path, None, params.sun, progress)
         params = replace(params, direct=replace(params.direct, precomputed=bake_direct(scene, sun, params.direct, progress)))
     density_out = work / f"{stem}.density.usda"
-    stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution), progress=progress)
+    stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution, volume_purpose=params.volume_purpose), progress=progress)
     smax_out = work / f"{stem}.smax.usda"
     stages["smax"] = _stage("smax", run_smax, density_out, smax_out, SmaxParams(optics=params.optics, sun=params.sun, direct=params.direct), progress=progress)
     spp_out = work / f"{stem}.spp.usda"
-    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct), progress=progress)
+    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose), progress=progress)
     lb_out = work / f"{stem}.lb.usda"
     stages["lb"] = _stage(
-        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct), progress=progress
+        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose), progress=progress
     )
     # a picture of the bake: direct light beside direct + each method's indirect, same exposure; per-leaf
     # primvars exist only on editable prototypes (a forest of native instances has none: direct light only)

@@ -28,6 +28,9 @@ register()
 from pxr import Sdf, Usd, UsdGeom, UsdVol, Vt  # noqa: E402
 
 USD_EXTENSIONS = (".usda", ".usdc", ".usd")
+#: ``--volume-purpose`` of the stages that write grids: ``default`` loads in DCCs (issue #17); ``guide`` keeps the
+#: volume out of default imports and renders, as before issue #17.
+VOLUME_PURPOSES = ("default", "guide")
 
 _PRIMVAR_TYPES = {
     "int": (Sdf.ValueTypeNames.IntArray, Vt.IntArray),
@@ -57,6 +60,12 @@ class VolumeEdit:
     grids: tuple[Grid, ...]
     attributes: dict = field(default_factory=dict)
     """``foliage:*`` attribute values of FoliageLightingAPI."""
+    purpose: str = "default"
+    """The volume's purpose (``--volume-purpose``): ``default`` (DCCs import it and renderers draw it) or ``guide``."""
+
+    def __post_init__(self) -> None:
+        if self.purpose not in VOLUME_PURPOSES:
+            raise ValueError(f"volume purpose must be one of {', '.join(VOLUME_PURPOSES)}, got {self.purpose!r}")
 
 
 @dataclass(frozen=True)
@@ -290,9 +299,9 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path, carried: dict[str, l
         primvar.Set(vt.FromNumpy(values))
     for vol in edits.volumes:
         volume = UsdVol.Volume.Define(stage, vol.path)
-        # purpose default (issue #17): DCCs import and renderers draw only default/render purpose by default
-        # (Blender 5.0 skipped the volume when it was a guide)
-        volume.CreatePurposeAttr(UsdGeom.Tokens.default_)
+        # purpose default unless --volume-purpose guide (issue #17): DCCs import and renderers draw only
+        # default/render purpose by default (Blender 5.0 skipped the volume when it was a guide)
+        volume.CreatePurposeAttr(UsdGeom.Tokens.default_ if vol.purpose == "default" else UsdGeom.Tokens.guide)
         lo = np.min([np.asarray(g.origin) for g in vol.grids], axis=0)
         hi = np.max([np.asarray(g.origin) + np.asarray(g.values.shape[:3]) * g.voxel_size for g in vol.grids], axis=0)
         volume.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))

@@ -162,7 +162,8 @@ def test_a_portable_bake_folder_still_opens_whole_after_a_move(tmp_path):
 
     out = tmp_path / "out"
     report = run_bake(src / "tree.usda", out, BakeParams(optics=parse_leaf_optics(None), resolution=8,
-                                                         direct=DirectChoice(mode="volume"), portable=True))
+                                                         direct=DirectChoice(mode="volume"), portable=True,
+                                                         volume_purpose="guide"))
     assert str(out / "tree.input.usda") in report.outputs and str(out / "tree.input.leaf.png") in report.outputs
     moved = tmp_path / "elsewhere" / "moved"
     moved.parent.mkdir()
@@ -177,6 +178,31 @@ def test_a_portable_bake_folder_still_opens_whole_after_a_move(tmp_path):
     assert tex.path == "./tree.input.leaf.png" and Path(tex.resolvedPath) == moved / "tree.input.leaf.png"
     assert set(UsdVol.Volume(stage.GetPrimAtPath("/Tree/FoliageLighting")).GetFieldPaths()) == {
         "density", "woodFraction", "sppGFactor", "sppDepth", "sppThickness", "lbSun"}
+    from pxr import UsdGeom
+
+    for name in ("density", "spp", "lb"):  # --volume-purpose reaches every stage of a bake
+        layer_stage = Usd.Stage.Open(str(moved / f"tree.{name}.usda"))
+        assert UsdGeom.Imageable(layer_stage.GetPrimAtPath("/Tree/FoliageLighting")).ComputePurpose() == "guide", name
     findings = validate(final)
     assert not [f for f in findings if f.severity == "error"], findings
     assert not [f for f in findings if f.rule == "portable-folder"]
+
+
+def test_volume_purpose_guide_keeps_the_volume_out_of_default_imports_and_the_last_stage_decides(tmp_path):
+    from pxr import Usd, UsdGeom
+
+    from tests.integration.test_cli_errors import foliage
+
+    def purpose(layer):
+        stage = Usd.Stage.Open(str(layer))
+        return UsdGeom.Imageable(stage.GetPrimAtPath("/Tree/FoliageLighting")).ComputePurpose()
+
+    r = foliage("density", EXAMPLE, "-o", tmp_path / "d.usda", "--resolution", "8", "--volume-purpose", "guide")
+    assert r.returncode == 0, r.stderr
+    assert purpose(tmp_path / "d.usda") == UsdGeom.Tokens.guide
+    lb = ("lb", tmp_path / "d.usda", "--resolution", "8", "--direct", "volume")
+    assert foliage(*lb, "-o", tmp_path / "g.usda", "--volume-purpose", "guide").returncode == 0
+    assert purpose(tmp_path / "g.usda") == UsdGeom.Tokens.guide
+    assert foliage(*lb, "-o", tmp_path / "l.usda").returncode == 0
+    assert purpose(tmp_path / "l.usda") == UsdGeom.Tokens.default_
+    assert foliage("density", EXAMPLE, "-o", tmp_path / "x.usda", "--volume-purpose", "render").returncode == 2
