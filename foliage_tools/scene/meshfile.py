@@ -69,6 +69,16 @@ class Part:
 
 
 def _pymeshlab():
+    # pymeshlab bundles an older libtbb.so.12 (interface 12050). Loaded first, it is the TBB numba then finds, and
+    # numba's first parallel loop in this process warns "The TBB threading layer requires ... 12060" and falls
+    # back (an error under pytest's warnings-as-errors). Starting numba's threads first keeps numba's own TBB,
+    # which pymeshlab then shares (same soname); its filters run the same (tests/integration/test_import.py).
+    try:
+        from numba.np.ufunc import parallel as _numba_parallel
+
+        _numba_parallel._launch_threads()
+    except Exception:  # a numba without that private hook: at worst the warning above, in a process that bakes too
+        pass
     try:
         import pymeshlab
     except ImportError as exc:  # pragma: no cover - environment problem, reported clearly

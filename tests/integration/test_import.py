@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-pytest.importorskip("pymeshlab", reason="foliage import needs pymeshlab (a dependency: pip install -e .)")
+# not importorskip: importing pymeshlab here, before numba starts its threads, would load pymeshlab's older TBB
+# for the whole test process (scene.meshfile._pymeshlab explains)
+if importlib.util.find_spec("pymeshlab") is None:
+    pytest.skip("foliage import needs pymeshlab (a dependency: pip install -e .)", allow_module_level=True)
 
 from foliage_tools.pipeline.import_model import ImportParams, run_import  # noqa: E402
 from foliage_tools.scene.meshfile import CleanOptions  # noqa: E402
@@ -185,3 +189,28 @@ def test_the_webots_oak_obj_imports_as_its_usd_conversion(tmp_path, oak):
     assert mine.leaves.count == theirs.leaves.count == 1831
     assert len(mine.triangles(leaves=False)) == len(theirs.triangles(leaves=False))
     assert np.isclose(mine.leaves.areas.sum(), theirs.leaves.areas.sum(), rtol=1e-6)
+
+
+def test_an_import_in_the_process_leaves_numba_its_own_threading_layer(tmp_path):
+    """A process that imports a mesh and then bakes (as `foliage batch` may) keeps numba's TBB layer, without warnings."""
+    import subprocess
+    import sys
+
+    src = tmp_path / "card.obj"
+    src.write_text(QUAD_OBJ)
+    code = (
+        "import warnings; warnings.simplefilter('error')\n"
+        "import numpy as np, numba\n"
+        "from foliage_tools.pipeline.import_model import ImportParams, run_import\n"
+        f"run_import({str(src)!r}, {str(tmp_path / 'c.usda')!r}, ImportParams())\n"
+        "@numba.njit(parallel=True)\n"
+        "def total(a):\n"
+        "    s = 0.0\n"
+        "    for i in numba.prange(a.size):\n"
+        "        s += a[i]\n"
+        "    return s\n"
+        "assert total(np.ones(1000)) == 1000\n"
+        "print(numba.threading_layer())\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
