@@ -8,7 +8,7 @@ EXAMPLE := examples/tree_small.usda
 DEMO    := out/demo
 OAK     := ../shared/assets/webots_oak/oak.usda
 
-.PHONY: setup demo test test-slow bench clean
+.PHONY: setup setup-bpy demo test test-slow bench clean
 
 setup: $(STAMP)
 
@@ -25,6 +25,17 @@ demo: setup
 
 test: setup
 	$(PY) -m pytest -m "not slow" -q
+
+# Blender as a Python module (bpy, ~350 MB) in its own venv: bpy pins its own Python (3.11 for Blender 5.0)
+# and numpy, so it cannot share .venv. tests/integration/test_blender_roundtrip.py runs Blender from it in a
+# subprocess (or from $$FOLIAGE_BPY_PYTHON), and is skipped, saying so, without it.
+BPY_VENV := .venv-bpy
+setup-bpy: $(BPY_VENV)/.installed
+
+$(BPY_VENV)/.installed:
+	python3.11 -m venv $(BPY_VENV)
+	$(BPY_VENV)/bin/pip install "bpy==5.0.*"
+	@touch $@
 
 test-slow: setup
 	$(PY) -m pytest -m slow -q

@@ -12,7 +12,7 @@ from foliage_tools.cli import console
 from foliage_tools.cli.common import (
     OUT, SCENE, parse_direct_samples, bake_options, common_options, direct_choice, direct_options, execute, gather_option,
     leaf_optics_from_flags, run,
-    setup_logging,
+    setup_logging, volume_purpose_option,
 )
 
 
@@ -232,11 +232,12 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, nois
               help="Stop after this many lattice sweeps. Short of --tolerance the layer is still written, and the "
                    "command exits 1 (a bake that failed its accuracy check).")
 @gather_option("LB's scattered light", "primvars:foliage:lb:scattered and lbIndirect (then per leaf)")
+@volume_purpose_option
 @direct_options
 @bake_options
 @common_options
 def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, solver: str, absorption_scale: float, max_sweeps: int,
-       gather: int, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+       gather: int, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
        as_json: bool, quiet: bool, verbose: int) -> None:
     """Lattice-Boltzmann light bake (geist2008, steele2010) per unique prototype.
 
@@ -265,6 +266,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, bases=bases, tolerance=tolerance, solver=solver, absorption_scale=absorption_scale,
             max_sweeps=max_sweeps, direct=direct_choice(direct_mode, direct_samples), gather=gather,
+            volume_purpose=volume_purpose,
         )
 
         def render(report) -> None:
@@ -290,6 +292,7 @@ def bake_job_options(fn):
                      help="Most reference sun paths (with --with-reference); it stops earlier at --reference-noise."),
         click.option("--reference-noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,
                      help="Reference per-leaf E_scattered noise at which tracing stops (with --with-reference)."),
+        volume_purpose_option,
         direct_options,
         bake_options,
     )):
@@ -298,7 +301,8 @@ def bake_job_options(fn):
 
 
 def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float, direct_mode: str,
-                direct_samples: int | None, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None):
+                direct_samples: int | None, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+                volume_purpose: str = "default", portable: bool = False):
     """The ``BakeParams`` of the bake options' values."""
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.bake import BakeParams
@@ -307,7 +311,8 @@ def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, 
         optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
         sun=parse_sun(sun) if sun is not None else None,
         resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
-        reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples),
+        reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples), portable=portable,
+        volume_purpose=volume_purpose,
     )
 
 
@@ -315,9 +320,13 @@ def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, 
 @SCENE
 @click.option("-o", "--output", "outdir", required=True, type=click.Path(path_type=Path, file_okay=False), help="Output directory (created if missing).")
 @bake_job_options
+@click.option("--portable", is_flag=True,
+              help="Write the input, flattened into one layer, into OUTDIR (NAME.input.usda, its textures and other files "
+                   "copied beside it) and bake that, so OUTDIR can be moved or shipped on its own. Without it the first "
+                   "layer sublayers the input by a relative path, and OUTDIR moves only together with the input.")
 @common_options
 def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float,
-         direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+         portable: bool, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
          as_json: bool, quiet: bool, verbose: int) -> None:
     """The main job: density, s_max, SPP and LB bakes, a preview (and a speed-vs-error report) into OUTDIR.
 
@@ -325,8 +334,9 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
     (OUTDIR/NAME.lb.usda) holds the whole bake over the untouched input.
 
     \b
-    Example:
+    Examples:
       foliage bake examples/tree_small.usda -o out/bake --with-reference
+      foliage bake examples/tree_small.usda -o out/ship --portable   # a folder that can move
     """
     from foliage_tools.pipeline.bake import run_bake
 
@@ -334,7 +344,8 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
         setup_logging(verbose, quiet)
         params = bake_params(resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
                              reference_noise=reference_noise, direct_mode=direct_mode, direct_samples=direct_samples,
-                             sun=sun, leaf_optics=leaf_optics, wood_reflectance=wood_reflectance)
+                             sun=sun, leaf_optics=leaf_optics, wood_reflectance=wood_reflectance,
+                             volume_purpose=volume_purpose, portable=portable)
 
         def render(report) -> None:
             for name, st in report.stats["stages"].items():
@@ -380,11 +391,12 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
 @click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True,
               help="With --depth rays: origins per leaf, uniform over its area (seeded); more rays, less count noise (1/sqrt).")
 @gather_option("SPP's (the exact slab's, with or without --gfactor)", "primvars:foliage:sppg:scattered (spp with --no-gfactor)")
+@volume_purpose_option
 @direct_options
 @bake_options
 @common_options
 def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, model: str | None, depth: str,
-        rays_per_leaf: int, gather: int, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+        rays_per_leaf: int, gather: int, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
         as_json: bool, quiet: bool, verbose: int) -> None:
     """Simplified plane-parallel scattering with the G-factor (shinya2013).
 
@@ -412,6 +424,7 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, directions=directions, gfactor=not no_gfactor, refine=refine, model=model,
             depth=depth, rays_per_leaf=rays_per_leaf, direct=direct_choice(direct_mode, direct_samples), gather=gather,
+            volume_purpose=volume_purpose,
         )
 
         def render(report) -> None:

@@ -235,6 +235,16 @@ def direct_options(fn: Callable) -> Callable:
     return fn
 
 
+def volume_purpose_option(fn: Callable) -> Callable:
+    """``--volume-purpose`` (density, spp, lb, bake): the purpose of the FoliageLighting volume written."""
+    return click.option(
+        "--volume-purpose", type=click.Choice(["default", "guide"]), default="default", show_default=True,
+        help="Purpose of the <tree>/FoliageLighting volume. default: DCCs import it (Blender 5.0 does, measured) and "
+             "renderers draw it, as a grey homogenised crown over the leaves; guide: kept out of default imports and "
+             "renders (the behaviour before issue #17). Its fields are guides either way.",
+    )(fn)
+
+
 def gather_option(later_bounces: str, replaces: str) -> Callable:
     """``--gather N`` (lb and spp): a final gather over the actual leaves on top of the volume method."""
     return click.option(

@@ -18,7 +18,7 @@ from rich.table import Table
 
 from foliage_tools import __version__
 from foliage_tools.cli import common, console
-from foliage_tools.cli.common import OUT, SCENE, common_options, execute, run, setup_logging
+from foliage_tools.cli.common import OUT, SCENE, common_options, execute, run, setup_logging, volume_purpose_option
 from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED
 
 
@@ -33,6 +33,7 @@ def cli() -> None:
 
     \b
     Typical pipeline:
+      foliage import tree.obj -o tree.usda      # a mesh file (OBJ, PLY, glTF) into a tree asset
       foliage inspect tree.usda                 # what the bakes will see
       foliage validate tree.usda --strict       # CI asset check
       foliage bake tree.usda -o baked/          # density, smax, spp, lb + preview
@@ -145,8 +146,10 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
 @click.option("--method", type=click.Choice(["area", "subgrid"]), default="area", show_default=True,
               help="area: exact leaf area per voxel / voxel volume (leaf-area density, 1/unit). "
                    "subgrid: geist2008 sec. 4.2 heuristic, fraction of 27 sub-cells touched (0..1).")
+@volume_purpose_option
 @common_options
-def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | None, method: str, as_json: bool, quiet: bool, verbose: int) -> None:
+def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | None, method: str, volume_purpose: str,
+            as_json: bool, quiet: bool, verbose: int) -> None:
     """Voxelize each prototype's leaves into a density grid and a wood-fraction grid.
 
     Writes OUT (a layer that sublayers SCENE) with primvars:foliage:leafId on
@@ -163,7 +166,7 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
 
     def body() -> int:
         setup_logging(verbose, quiet)
-        params = DensityParams(voxel_size=voxel_size, resolution=resolution, method=method)
+        params = DensityParams(voxel_size=voxel_size, resolution=resolution, method=method, volume_purpose=volume_purpose)
 
         def render(report) -> None:
             table = Table(title=f"density ({method}) in {report.seconds:.2f} s")
@@ -249,9 +252,10 @@ def plan(scene: Path, resolution: int, bases: str, depth: str, rays_per_leaf: in
 def _add_commands() -> None:
     from foliage_tools.cli.bakes import bake, bench, lb, reference, smax, spp
     from foliage_tools.cli.batch import batch
+    from foliage_tools.cli.importer import import_model
     from foliage_tools.cli.preview import preview
 
-    for command in (lb, spp, smax, reference, bench, bake, batch, preview):
+    for command in (lb, spp, smax, reference, bench, bake, batch, preview, import_model):
         cli.add_command(command)
 
 

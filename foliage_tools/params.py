@@ -25,6 +25,8 @@ class DensityParams:
     ``subgrid``: geist2008 sec. 4.2, fraction of the 27 sub-cells a leaf touches (0..1)."""
     margin_voxels: int = 1
     """Empty voxels added around the foliage bounds on every side."""
+    volume_purpose: str = "default"
+    """``--volume-purpose`` of the FoliageLighting volume written (``scene.write.VOLUME_PURPOSES``)."""
 
     def __post_init__(self) -> None:
         if self.voxel_size is not None and self.resolution is not None:
@@ -35,6 +37,8 @@ class DensityParams:
             raise UsageError(f"--resolution must be between 1 and 2048 voxels, got {self.resolution}.")
         if self.method not in DENSITY_METHODS:
             raise UsageError(f"--method must be one of {', '.join(DENSITY_METHODS)}, got {self.method!r}.")
+        if self.volume_purpose not in ("default", "guide"):
+            raise UsageError(f"--volume-purpose must be default or guide, got {self.volume_purpose!r}.")
         if self.margin_voxels < 0:
             raise UsageError(f"the margin must be >= 0 voxels, got {self.margin_voxels}.")
 

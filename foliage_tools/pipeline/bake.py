@@ -45,6 +45,10 @@ class BakeParams:
     """Per-leaf E_scattered noise at which the reference stops (None: trace ``reference_paths``)."""
     direct: DirectChoice = DirectChoice()
     """``--direct`` for every bake stage."""
+    volume_purpose: str = "default"
+    """``--volume-purpose`` of the FoliageLighting volumes every stage writes."""
+    portable: bool = False
+    """Bake a flattened copy of the input written into OUTDIR (``scene.portable``), so the folder can move on its own."""
 
 
 #: ``--lod`` of the bake's preview of a forest above ``world.WORLD_MAX_TRIANGLES``.
@@ -65,6 +69,10 @@ def planned_outputs(path: Path, params: BakeParams) -> list[str]:
     names = [f"{stem}.{s}.{ext}" for s in ("density", "smax", "spp", "lb") for ext in ("usda", "vdb")]
     names.remove(f"{stem}.smax.vdb")
     names.append(f"{stem}.png")
+    if params.portable:
+        from foliage_tools.scene.portable import input_copy_name
+
+        names.append(input_copy_name(path))  # and its copied asset files (<stem>.input.NAME), known once written
     if params.with_reference:
         names += ["bench.json", "bench.png"]
     return names
@@ -88,8 +96,15 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
         _remove_empty(created)
         raise
     try:
-        stages = _run_stages(path, commit.staging, params, progress)
-        moved = _commit(path, outdir, commit)
+        source, copied = path, []
+        if params.portable:
+            from foliage_tools.scene.portable import write_portable_input
+
+            progress.step(f"flattening {path} into the output folder (--portable)")
+            copied = write_portable_input(path, commit.staging, report.warnings)
+            source = copied[-1]
+        stages = _run_stages(source, commit.staging, params, progress, stem=Path(path).stem)
+        moved = _commit(path, outdir, commit, portable_input=source if params.portable else None)
     except BaseException:
         commit.discard()
         _remove_empty(created)
@@ -97,6 +112,7 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     final = moved[f"{Path(path).stem}.lb.usda"]
     for r in stages.values():
         r.outputs = [str(moved.get(Path(o).name, o)) for o in r.outputs]
+    report.outputs += [str(moved[f.name]) for f in copied]
     for name, r in stages.items():
         report.outputs += r.outputs
         report.warnings += [f"{name}: {w}" for w in r.warnings]
@@ -110,7 +126,7 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     return report.finish()
 
 
-def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) -> dict[str, Report]:
+def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, *, stem: str) -> dict[str, Report]:
     """Every stage in order, each layer over the previous one, all written into ``work``; their reports."""
     from foliage_tools.pipeline.density import run_density
     from foliage_tools.pipeline.lb import LBBakeParams, run_lb
@@ -118,7 +134,6 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) 
     from foliage_tools.pipeline.smax import SmaxParams, run_smax
     from foliage_tools.pipeline.spp import SppParams, run_spp
 
-    stem = Path(path).stem
     stages = {}
     if params.direct.mode == "rays":
         # the exact direct light, traced once for the three stages that write it (the geometry is the input's)
@@ -130,14 +145,14 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress) 
         _, scene, sun = begin_bake("bake", path, None, params.sun, progress)
         params = replace(params, direct=replace(params.direct, precomputed=bake_direct(scene, sun, params.direct, progress)))
     density_out = work / f"{stem}.density.usda"
-    stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution), progress=progress)
+    stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution, volume_purpose=params.volume_purpose), progress=progress)
     smax_out = work / f"{stem}.smax.usda"
     stages["smax"] = _stage("smax", run_smax, density_out, smax_out, SmaxParams(optics=params.optics, sun=params.sun, direct=params.direct), progress=progress)
     spp_out = work / f"{stem}.spp.usda"
-    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct), progress=progress)
+    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose), progress=progress)
     lb_out = work / f"{stem}.lb.usda"
     stages["lb"] = _stage(
-        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct), progress=progress
+        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose), progress=progress
     )
     # a picture of the bake: direct light beside direct + each method's indirect, same exposure; per-leaf
     # primvars exist only on editable prototypes (a forest of native instances has none: direct light only)
@@ -233,7 +248,7 @@ def _check_outputs(path: Path, outdir: Path, names: list[str]) -> None:
         check_name_fits(f)
 
 
-def _commit(path: Path, outdir: Path, commit: Commit) -> dict[str, Path]:
+def _commit(path: Path, outdir: Path, commit: Commit, *, portable_input: Path | None = None) -> dict[str, Path]:
     """Move the finished bake into OUTDIR as one result; {name: final path}.
 
     The layers were written in the staging directory, so the one that
@@ -248,7 +263,9 @@ def _commit(path: Path, outdir: Path, commit: Commit) -> dict[str, Path]:
     clash = [outdir / n for n in names if (outdir / n).resolve() in used]
     if clash:
         raise OutputError(f"@{clash[0]}@ is a file the input @{path}@ uses; bake into another directory (inputs are never modified).")
-    layers = relocate_and_seal(commit.staging, outdir, [n for n in names if Path(n).suffix in (".usda", ".usdc", ".usd")])
+    # the flattened input (--portable) is the input, not a bake layer: it is moved as written, with the grids
+    skip = {portable_input.name} if portable_input is not None else set()
+    layers = relocate_and_seal(commit.staging, outdir, [n for n in names if Path(n).suffix in (".usda", ".usdc", ".usd") and n not in skip])
     others = [n for n in names if n not in layers]
     finals = commit.commit([*others, *layers])  # grids, images and reports first; the layers bottom-up, the final one last
     return {f.name: f for f in finals}

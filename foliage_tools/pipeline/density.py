@@ -238,7 +238,8 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
             Grid("density", res.density.astype(np.float32), tuple(res.grid.origin), res.grid.voxel_size, grid_meta),
             Grid("woodFraction", res.wood_fraction.astype(np.float32), tuple(res.grid.origin), res.grid.voxel_size, {"units": "fraction"}),
         )
-        edits.volumes.append(VolumeEdit(path=volume_path(proto), vdb_file=vdb_path(out, scene, i), grids=grids, attributes=meta))
+        edits.volumes.append(VolumeEdit(path=volume_path(proto), vdb_file=vdb_path(out, scene, i), grids=grids, attributes=meta,
+                                        purpose=params.volume_purpose))
         rel_err = abs(res.leaf_area_grid - res.leaf_area_mesh) / res.leaf_area_mesh if params.method == "area" else None
         if (rel_err is not None and rel_err > AREA_WARN) or not np.any(res.density):
             size = float(np.ptp(proto.leaves.centers, axis=0).max()) if proto.leaves.count else 0.0

@@ -102,6 +102,8 @@ class LBBakeParams:
     """With the first-collision sun: ``exact`` replaces the lattice's once-scattered light by the exact one
     (``lighting.single_scatter``, Nakajima & Tanaka 1988's correction: a march over 128 directions from every
     node near the leaves), the lattice keeping the higher orders; ``lattice`` keeps the lattice's own."""
+    volume_purpose: str = "default"
+    """``--volume-purpose`` of the FoliageLighting volume (``scene.write.VOLUME_PURPOSES``)."""
     gather: int = 0
     """``--gather N``: rays per leaf of a final gather over the actual leaves (pipeline.gather): the first bounce
     exact, the later ones from LB's E_scattered at the hit leaf. Its result replaces ``:scattered`` and
@@ -308,7 +310,8 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "foliage:lb:absorptionScale": float(params.absorption_scale),
         }
         vol = volume_path(proto)
-        edits.volumes.append(VolumeEdit(path=vol, vdb_file=vdb_path(out, scene, bake.index), grids=tuple(grids), attributes=attrs))
+        edits.volumes.append(VolumeEdit(path=vol, vdb_file=vdb_path(out, scene, bake.index), grids=tuple(grids), attributes=attrs,
+                                        purpose=params.volume_purpose))
         if not proto.editable:
             report.warnings.append(native_instance_warning(proto, "LB primvars"))
         if gathered:

@@ -110,6 +110,11 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
             report.warnings.append(native_instance_warning(proto, "s_max primvars"))
         edits.primvars += leaf_primvar_edits(proto, "foliage:smax", env.smax, type="float", element_size=8)
         edits.primvars += leaf_primvar_edits(proto, "foliage:attenuation", env.attenuation, type="float", element_size=8)
+        # the same values one direction per primvar (foliage:smax0..7, foliage:attenuation0..7): DCCs that import
+        # primvars as mesh attributes take one value per element (Blender 5.0 turned elementSize 8 into zeros)
+        for k in range(env.smax.shape[1]):
+            edits.primvars += leaf_primvar_edits(proto, f"foliage:smax{k}", env.smax[:, k], type="float")
+            edits.primvars += leaf_primvar_edits(proto, f"foliage:attenuation{k}", env.attenuation[:, k], type="float")
         edits.primvars += leaf_primvar_edits(proto, "foliage:smax:direct", e_direct, type="color3f")
         edits.primvars += leaf_primvar_edits(proto, "foliage:smax:scattered", light.e_scattered, type="color3f")
         edits.attributes += baked_sun_attribute(scene, bake.index, "smax", sun.direction)

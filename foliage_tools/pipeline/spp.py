@@ -112,6 +112,8 @@ class SppParams:
     direct: DirectChoice = DirectChoice()
     """``--direct``: what the ``{spp,sppg,ss}:direct`` primvars and the direct part of ``sppIrradiance`` hold
     (exact shadow rays by default, or eq. 17's attenuated beam through the measured depths)."""
+    volume_purpose: str = "default"
+    """``--volume-purpose`` of the FoliageLighting volume (``scene.write.VOLUME_PURPOSES``)."""
     gather: int = 0
     """``--gather N``: rays per leaf of a final gather over the actual leaves (pipeline.gather) whose first
     bounce is exact and whose later bounces come from SPPG (SPP with ``--no-gfactor``); its result replaces
@@ -407,7 +409,8 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
             "foliage:resolution": tuple(int(n) for n in bake.grid_depth.shape),
             "foliage:metersPerUnit": float(scene.meters_per_unit), "foliage:seconds": float(bake.seconds), "foliage:version": __version__,
         }
-        edits.volumes.append(VolumeEdit(path=volume_path(proto), vdb_file=vdb_path(out, scene, bake.index), grids=grids, attributes=attrs))
+        edits.volumes.append(VolumeEdit(path=volume_path(proto), vdb_file=vdb_path(out, scene, bake.index), grids=grids, attributes=attrs,
+                                        purpose=params.volume_purpose))
         if not proto.editable:
             report.warnings.append(native_instance_warning(proto, "SPP primvars"))
         methods = {"spp": res.spp, "ss": res.ss}

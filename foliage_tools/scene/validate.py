@@ -274,6 +274,21 @@ def _bake_files_match(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         )
 
 
+@rule("portable-folder", "A bake layer's sublayer path stays inside its folder (warning: else the folder cannot move on its own; bake --portable).")
+def _portable_folder(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    from foliage_tools.scene.portable import escaping_sublayers
+
+    for layer in stage.GetUsedLayers():
+        if not layer.realPath or record_of(Path(layer.realPath)) is None:
+            continue  # only foliage's own layers: an asset's layout is its author's business
+        for sub in escaping_sublayers(layer):
+            yield Finding(
+                WARNING, "portable-folder",
+                f"@{layer.realPath}@ sublayers @{sub}@, outside its folder: moved without it, the folder opens as an empty "
+                "scene. Move both together, or bake with `foliage bake --portable` (a flattened copy of the input in the folder).",
+            )
+
+
 @rule("leaf-optics-attributes", "foliage:leaf:reflectance / transmittance are reserved and not read yet (the bake's --leaf-optics applies).")
 def _leaf_optics_attributes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     for prim in _meshes(stage):

@@ -24,6 +24,21 @@ except ImportError as exc:  # pragma: no cover - environment problem, reported c
     ) from exc
 
 
+#: OpenVDB grid class of each grid a bake writes (DESIGN.md section 3, grid names): ``fog volume`` says "a density
+#: to render as a participating medium", so only the leaf density carries it; the others are data on the same voxels
+#: (fractions, photon energy densities, optical depths, G-factors) that a renderer must not treat as extinction.
+#: Any name not listed is ``unknown``. None of them is face-centred, so none is ``staggered``.
+FOG_GRIDS = frozenset({"density"})
+
+
+def grid_class(name: str) -> str:
+    """``fog volume`` for the densities, ``unknown`` for every other grid (OpenVDB's ``GridClass`` names)."""
+    return "fog volume" if name in FOG_GRIDS else "unknown"
+
+
+_GRID_CLASSES = {"fog volume": _vdb.GridClass.FOG_VOLUME, "unknown": _vdb.GridClass.UNKNOWN}
+
+
 @dataclass(frozen=True)
 class Grid:
     """A dense array on an axis-aligned voxel grid, with metadata."""
@@ -60,18 +75,47 @@ def to_vdb(grid: Grid):
         g.copyFromArray(values, ijk=(0, 0, 0), tolerance=0.0)
     g.transform = _vdb.createLinearTransform(_index_to_world(grid.origin, grid.voxel_size))
     g.name = grid.name
-    g.gridClass = _vdb.GridClass.FOG_VOLUME
+    g.gridClass = _GRID_CLASSES[grid_class(grid.name)]
     for key, value in grid.metadata.items():
         g[key] = value
     return g
 
 
-def write_vdb(path: Path, grids: list[Grid], *, metadata: dict | None = None) -> None:
-    """Write grids to ``path`` (not atomic by itself: pass a temporary path)."""
-    names = [g.name for g in grids]
+def write_vdb(path: Path, grids: list[Grid], *, metadata: dict | None = None, carried: list[tuple[Path, str]] = ()) -> None:
+    """Write grids to ``path`` (not atomic by itself: pass a temporary path).
+
+    ``carried``: (file, grid name) of grids an earlier stage wrote, copied as they
+    are (sparse tree, transform, metadata) into this file after ``grids``, so one
+    file holds every field of a volume (DCCs such as Blender read one file per
+    volume). Their grid class is set by name like the new grids'.
+    """
+    written = [to_vdb(g) for g in grids]
+    for source, name in carried:
+        written.append(_read_raw(Path(source), name))
+    names = [g.name for g in written]
     if len(set(names)) != len(names):
         raise ValueError(f"grid names must be unique within a file, got {names}")
-    _vdb.write(str(path), grids=[to_vdb(g) for g in grids], metadata=dict(metadata or {}))
+    _vdb.write(str(path), grids=written, metadata=dict(metadata or {}))
+
+
+def _read_raw(path: Path, name: str):
+    """One grid of a file as pyopenvdb holds it, with its class set by name; :class:`InputError` if unreadable."""
+    if name not in grid_names(path):
+        raise InputError(f"@{path}@ has no grid named {name!r}.")
+    try:
+        g = _vdb.read(str(path), name)
+    except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
+        raise InputError(f"@{path}@: grid {name!r} cannot be read ({exc}).") from None
+    g.gridClass = _GRID_CLASSES[grid_class(name)]
+    return g
+
+
+def grid_classes(path: Path) -> dict[str, str]:
+    """{grid name: OpenVDB grid class name} of a ``.vdb`` (``fog volume``, ``unknown``, ...)."""
+    try:
+        return {g.name: str(g.gridClass) for g in _vdb.readAllGridMetadata(str(path))}
+    except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
+        raise InputError(f"@{path}@: not a readable OpenVDB file ({exc}).") from None
 
 
 def file_metadata(path: Path) -> dict:

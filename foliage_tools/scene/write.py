@@ -29,6 +29,9 @@ register()
 from pxr import Sdf, Usd, UsdGeom, UsdVol, Vt  # noqa: E402
 
 USD_EXTENSIONS = (".usda", ".usdc", ".usd")
+#: ``--volume-purpose`` of the stages that write grids: ``default`` loads in DCCs (issue #17); ``guide`` keeps the
+#: volume out of default imports and renders, as before issue #17.
+VOLUME_PURPOSES = ("default", "guide")
 
 _PRIMVAR_TYPES = {
     "int": (Sdf.ValueTypeNames.IntArray, Vt.IntArray),
@@ -58,6 +61,12 @@ class VolumeEdit:
     grids: tuple[Grid, ...]
     attributes: dict = field(default_factory=dict)
     """``foliage:*`` attribute values of FoliageLightingAPI."""
+    purpose: str = "default"
+    """The volume's purpose (``--volume-purpose``): ``default`` (DCCs import it and renderers draw it) or ``guide``."""
+
+    def __post_init__(self) -> None:
+        if self.purpose not in VOLUME_PURPOSES:
+            raise ValueError(f"volume purpose must be one of {', '.join(VOLUME_PURPOSES)}, got {self.purpose!r}")
 
 
 @dataclass(frozen=True)
@@ -177,8 +186,6 @@ def write_layer(input_path: Path, out: Path, edits: LayerEdits, *, input_stage_m
     with atomic_outputs([*vdb_files, out]) as temps:
         commit = new_commit_id()
         meta = {"creator": "foliage-tools", "foliage:commit": commit, "foliage:written": utc_now()}  # integrity.written
-        for vol in edits.volumes:
-            write_vdb(temps[vol.vdb_file], list(vol.grids), metadata=meta)
         tmp = temps[out]
         layer = Sdf.Layer.CreateNew(str(tmp))
         if layer is None:  # pragma: no cover - CreateNew raises on failure in practice
@@ -191,12 +198,66 @@ def write_layer(input_path: Path, out: Path, edits: LayerEdits, *, input_stage_m
                 layer.pseudoRoot.SetInfo(key, input_stage_meta[key])
         stage = Usd.Stage.Open(layer)
         stage.SetEditTarget(Usd.EditTarget(layer))
-        _author(stage, edits, out)
+        carried = {vol.path: _earlier_fields(stage, vol) for vol in edits.volumes}
+        for vol in edits.volumes:
+            write_vdb(temps[vol.vdb_file], list(vol.grids), metadata=meta,
+                      carried=[(f.file, f.grid) for f in carried[vol.path]])
+        _author(stage, edits, out, carried)
         del stage
         layer.subLayerPaths[0] = _relative(input_path, out.parent)
         seal(layer, locator(tmp.parent, out.parent), commit)
         layer.Save()
     return [*vdb_files, out]
+
+
+@dataclass(frozen=True)
+class _EarlierField:
+    """A field of the input's volume that this stage does not rewrite: its grid is copied into this stage's file."""
+
+    prim: str
+    file: Path
+    grid: str
+
+
+def _earlier_fields(stage: Usd.Stage, vol: VolumeEdit) -> list[_EarlierField]:
+    """The fields an earlier stage gave the volume at ``vol.path`` (composed from the input), other than ``vol``'s grids.
+
+    One ``.vdb`` per volume (issue #17): Blender 5.0 reads a single file per
+    Volume prim (the last field's) and drops the grids of the others, so each
+    stage copies the earlier grids into its own file and points their fields
+    at it; the earlier files stay as the earlier layers wrote them. A field
+    whose file is missing is left alone (``validate`` names it).
+    """
+    prim = stage.GetPrimAtPath(vol.path)
+    volume = UsdVol.Volume(prim) if prim else None
+    if not volume:
+        return []
+    new = {g.name for g in vol.grids}
+    found = []
+    for name, field_path in sorted(volume.GetFieldPaths().items()):
+        asset = UsdVol.OpenVDBAsset(stage.GetPrimAtPath(field_path))
+        if not asset:
+            continue
+        grid = asset.GetFieldNameAttr().Get() or str(name)
+        if str(name) in new or grid in new:
+            continue  # this stage writes that grid anew
+        ap = asset.GetFilePathAttr().Get()
+        if ap is None or not ap.resolvedPath or not Path(ap.resolvedPath).is_file():
+            continue
+        found.append(_EarlierField(str(field_path), Path(ap.resolvedPath), grid))
+    return found
+
+
+def _mark_custom(prim: Usd.Prim, attr: Usd.Attribute) -> None:
+    """Author ``custom`` on the attribute's spec in the edit target, schema-defined or not.
+
+    DCC importers keep custom attributes only (Blender 5.0's USD import drops
+    the attributes an applied API schema defines, such as ``foliage:tau``);
+    USD itself reads the values the same either way.
+    """
+    spec = prim.GetStage().GetEditTarget().GetPropertySpecForScenePath(attr.GetPath())
+    if spec is not None and not spec.custom:
+        spec.custom = True
 
 
 def _apply_lighting_metadata(prim: Usd.Prim, attributes: dict) -> None:
@@ -208,9 +269,10 @@ def _apply_lighting_metadata(prim: Usd.Prim, attributes: dict) -> None:
         if isinstance(value, (tuple, list)):  # e.g. int3 -> Gf.Vec3i
             value = attr.GetTypeName().type.pythonClass(*value)
         attr.Set(value)
+        _mark_custom(prim, attr)
 
 
-def _author(stage: Usd.Stage, edits: LayerEdits, out: Path) -> None:
+def _author(stage: Usd.Stage, edits: LayerEdits, out: Path, carried: dict[str, list[_EarlierField]]) -> None:
     for pv in edits.primvars:
         prim = stage.OverridePrim(pv.prim)
         sdf_type, vt = _PRIMVAR_TYPES[pv.type]
@@ -223,7 +285,9 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path) -> None:
         primvar.Set(vt.FromNumpy(values))
     for vol in edits.volumes:
         volume = UsdVol.Volume.Define(stage, vol.path)
-        volume.CreatePurposeAttr(UsdGeom.Tokens.guide)
+        # purpose default unless --volume-purpose guide (issue #17): DCCs import and renderers draw only
+        # default/render purpose by default (Blender 5.0 skipped the volume when it was a guide)
+        volume.CreatePurposeAttr(UsdGeom.Tokens.default_ if vol.purpose == "default" else UsdGeom.Tokens.guide)
         lo = np.min([np.asarray(g.origin) for g in vol.grids], axis=0)
         hi = np.max([np.asarray(g.origin) + np.asarray(g.values.shape[:3]) * g.voxel_size for g in vol.grids], axis=0)
         volume.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))
@@ -236,7 +300,12 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path) -> None:
             asset.CreateFieldNameAttr(g.name)
             asset.CreateFieldDataTypeAttr(g.data_type)
             volume.CreateFieldRelationship(g.name, field_path)
+            _hide_field(asset)
             fields.append(asset.GetPrim())
+        for earlier in carried.get(vol.path, ()):
+            asset = UsdVol.OpenVDBAsset(stage.OverridePrim(earlier.prim))
+            asset.CreateFilePathAttr(Sdf.AssetPath(rel_file))
+            _hide_field(asset)
         # the volume's metadata is the last stage's (stages chained over one volume override it);
         # each field carries the metadata of the stage that wrote its grid, which nothing overrides
         for prim in [volume.GetPrim(), *fields]:
@@ -247,6 +316,17 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path) -> None:
             prim.ApplyAPI(edit.api)
         for name, (value, type_name) in edit.values.items():
             _set_attr(prim, name, value, type_name)
+            _mark_custom(prim, prim.GetAttribute(name))
+
+
+def _hide_field(asset: UsdVol.OpenVDBAsset) -> None:
+    """Field prims are Xformable, so DCCs import each as an object (six stray Empties in Blender 5.0).
+
+    Purpose ``guide`` keeps them out of a default import and out of renders; the
+    volume still reaches them through its ``field:`` relationships (Blender
+    reads the grids, measured), which is how every consumer finds fields.
+    """
+    asset.CreatePurposeAttr(UsdGeom.Tokens.guide)
 
 
 def stage_metadata(stage_path: Path) -> dict:

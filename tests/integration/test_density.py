@@ -73,7 +73,9 @@ def test_output_layer_sublayers_the_input_and_adds_only_the_bake(oak_density):
     stage = Usd.Stage.Open(str(out))
     vol = UsdVol.Volume(stage.GetPrimAtPath("/Tree/FoliageLighting"))
     assert vol.GetPrim().HasAPI("FoliageLightingAPI")
-    assert vol.GetPurposeAttr().Get() == UsdGeom.Tokens.guide
+    # purpose default, so DCCs import it; its fields are guides, so they are not imported as objects (issue #17)
+    assert vol.GetPurposeAttr().Get() == UsdGeom.Tokens.default_
+    assert {UsdGeom.Imageable(stage.GetPrimAtPath(p)).GetPurposeAttr().Get() for p in vol.GetFieldPaths().values()} == {UsdGeom.Tokens.guide}
     assert set(vol.GetFieldPaths()) == {"density", "woodFraction"}
     leaf_id = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Tree/leaves_0")).GetPrimvar("foliage:leafId")
     ids = np.asarray(leaf_id.Get())

@@ -1,0 +1,80 @@
+"""``foliage import``: a mesh file (OBJ, PLY, glTF/GLB, ...) -> a USD tree asset the bakes read.
+
+Reading and clean-ups are pymeshlab's (``scene.meshfile``); the USD layout is
+``scene.asset``'s. Leaves vs wood: a part whose name (OBJ object/group or
+material, glTF mesh) matches ``leaf_pattern`` holds leaves, the rest is wood;
+``all_leaves`` makes every part leaves (a file of leaf cards only).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from foliage_tools.errors import UsageError
+from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.scene.meshfile import CleanOptions
+
+#: The names that mean leaves, as in scene.read (DESIGN.md section 3).
+DEFAULT_LEAF_PATTERN = r"leaf|leaves|foliage|needle"
+
+
+@dataclass(frozen=True)
+class ImportParams:
+    up_axis: str = "Y"
+    """The model's up axis, authored as the stage's ``upAxis`` (geometry is not rotated). glTF is Y-up by its spec;
+    OBJ and PLY have no convention (Blender and most DCCs export Y-up)."""
+    meters_per_unit: float = 1.0
+    """Length of one model unit in metres, authored as ``metersPerUnit`` (glTF is metres by its spec; 0.01 for cm)."""
+    leaf_pattern: str = DEFAULT_LEAF_PATTERN
+    """Regular expression (case-insensitive) on part names: a match holds leaves."""
+    all_leaves: bool = False
+    """Every part holds leaves (a file of leaf cards only)."""
+    clean: CleanOptions = field(default_factory=CleanOptions)
+
+    def __post_init__(self) -> None:
+        if self.up_axis.upper() not in ("Y", "Z"):
+            raise UsageError(f"--up-axis {self.up_axis!r}: USD stages are Y-up or Z-up.")
+        if not (np.isfinite(self.meters_per_unit) and self.meters_per_unit > 0):
+            raise UsageError(f"--meters-per-unit {self.meters_per_unit}: must be a finite length > 0.")
+        try:
+            re.compile(self.leaf_pattern)
+        except re.error as exc:
+            raise UsageError(f"--leaves {self.leaf_pattern!r} is not a regular expression ({exc}).") from None
+
+
+def run_import(path: Path, out: Path, params: ImportParams, *, progress: Progress | None = None) -> Report:
+    from foliage_tools.scene.asset import write_tree_asset
+    from foliage_tools.scene.meshfile import read_parts
+
+    progress = progress or Silent()
+    report = Report(command="import", inputs=[str(path)])
+    path, out = Path(path), Path(out)
+    if out.resolve() == path.resolve():
+        raise UsageError(f"@{out}@ is the input file; choose another output (inputs are never modified).")
+    progress.step(f"reading {path}")
+    pattern = re.compile(".*" if params.all_leaves else params.leaf_pattern, re.IGNORECASE)
+    parts, warnings = read_parts(path, leaf_pattern=pattern, options=params.clean)
+    report.warnings += warnings
+    if not any(p.is_leaf for p in parts):
+        names = ", ".join(repr(p.name) for p in parts[:8])
+        report.warnings.append(
+            f"@{path}@: no part's name matches {params.leaf_pattern!r} (parts: {names}), so everything is wood and the "
+            "bakes will refuse it; name the leaf parts, or pass --leaves PATTERN or --all-leaves.")
+    progress.step(f"writing {out}")
+    doc = f"Imported from {path.name} by `foliage import` (pymeshlab; UVs, normals and textures not carried)."
+    prims = write_tree_asset(out, parts, up_axis=params.up_axis, meters_per_unit=params.meters_per_unit, doc=doc)
+    report.outputs = [str(out)]
+    report.stats = {
+        "up_axis": params.up_axis.upper(),
+        "meters_per_unit": params.meters_per_unit,
+        "parts": [
+            {"prim": prim, "name": p.name, "material": p.material, "leaf": p.is_leaf, "faces_read": p.faces_read,
+             "triangles": int(len(p.triangles)), "points": int(len(p.points))}
+            for prim, p in zip(prims, parts)
+        ],
+    }
+    return report.finish()

@@ -1,0 +1,114 @@
+"""Issue #17: a bake of tree_small imported into Blender (``bpy``, Blender as a Python module) arrives whole.
+
+Blender runs in its own venv (bpy pins its own Python and numpy), in a
+subprocess running ``tests/blender/usd_import_probe.py``: ``make setup-bpy``
+makes ``.venv-bpy/`` (README, "Blender"), or point ``FOLIAGE_BPY_PYTHON`` at
+the Python of any venv that has ``bpy``. Without one, the test is skipped and
+says so.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from foliage_tools.lighting.optics import parse_leaf_optics
+from foliage_tools.pipeline.bake import BakeParams, run_bake
+from foliage_tools.pipeline.direct import DirectChoice
+
+REPO = Path(__file__).resolve().parents[2]
+EXAMPLE = REPO / "examples" / "tree_small.usda"
+PROBE = REPO / "tests" / "blender" / "usd_import_probe.py"
+
+
+def bpy_python() -> Path | None:
+    """The Python of the bpy venv: $FOLIAGE_BPY_PYTHON, else the repository's .venv-bpy (``make setup-bpy``)."""
+    env = os.environ.get("FOLIAGE_BPY_PYTHON")
+    candidates = [Path(env)] if env else [REPO / ".venv-bpy" / "bin" / "python"]
+    return next((c for c in candidates if c.is_file()), None)
+
+
+@pytest.fixture(scope="module")
+def blender_import(tmp_path_factory):
+    python = bpy_python()
+    if python is None:
+        pytest.skip("no Blender Python: `make setup-bpy` (a venv with `pip install bpy` at .venv-bpy), or set "
+                    "FOLIAGE_BPY_PYTHON to the python of a venv that has bpy")
+    out = tmp_path_factory.mktemp("blender") / "out"
+    report = run_bake(EXAMPLE, out, BakeParams(optics=parse_leaf_optics(None), resolution=12, direct=DirectChoice(mode="volume")))
+    final = Path(report.stats["result"])
+    r = subprocess.run([str(python), str(PROBE), str(final)], capture_output=True, text=True, timeout=300,
+                       cwd=tmp_path_factory.mktemp("blender-cwd"))
+    lines = [line for line in r.stdout.splitlines() if line.startswith("PROBE")]
+    assert r.returncode == 0 and lines, f"Blender probe failed ({python}):\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
+    return final, json.loads(lines[-1][len("PROBE"):])
+
+
+def _objects(probe, kind=None):
+    return {o["name"]: o for o in probe["objects"] if kind is None or o["type"] == kind}
+
+
+def test_the_volume_arrives_with_every_grid_from_one_file_and_no_stray_objects(blender_import):
+    import pyopenvdb
+    from pxr import Usd, UsdVol
+
+    final, probe = blender_import
+    volumes = _objects(probe, "VOLUME")
+    assert set(volumes) == {"FoliageLighting"}, "the volume is imported by default (purpose default)"
+    vol = volumes["FoliageLighting"]
+    stage = Usd.Stage.Open(str(final))
+    fields = UsdVol.Volume(stage.GetPrimAtPath("/Tree/FoliageLighting")).GetFieldPaths()
+    assert {g["name"] for g in vol["grids"]} == set(fields) == {
+        "density", "woodFraction", "sppGFactor", "sppDepth", "sppThickness", "lbSun"}
+    assert Path(vol["filepath"]).resolve() == (final.parent / "tree_small.lb.vdb").resolve()
+    for g in vol["grids"]:
+        assert g["data_type"] == ("VECTOR_FLOAT" if g["name"] == "lbSun" else "FLOAT"), g["name"]
+        # Blender's index-to-object matrix is the grid's own transform (voxel size, voxel centres)
+        t = pyopenvdb.read(str(final.parent / "tree_small.lb.vdb"), g["name"]).transform
+        m = np.asarray(g["matrix"])
+        h = np.linalg.norm(np.subtract(t.indexToWorld((1, 0, 0)), t.indexToWorld((0, 0, 0))))
+        assert np.allclose(np.diag(m)[:3], h, rtol=1e-6) and np.allclose(m[:3, 3], t.indexToWorld((0, 0, 0)), atol=1e-6)
+    # the OpenVDBAsset prims no longer arrive as Empties
+    empties = set(_objects(probe, "EMPTY"))
+    assert not empties & set(fields), empties
+    assert {"Leaves", "Wood"} <= set(_objects(probe, "MESH"))
+
+
+def test_per_direction_primvars_arrive_with_their_values(blender_import):
+    from pxr import Usd, UsdGeom
+
+    final, probe = blender_import
+    leaves = _objects(probe, "MESH")["Leaves"]
+    stage = Usd.Stage.Open(str(final))
+    pv = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Tree/Leaves"))
+    faces = leaves["faces"]
+    for base in ("smax", "attenuation"):
+        packed = np.asarray(pv.GetPrimvar(f"foliage:{base}").Get(), dtype=np.float32).reshape(faces, 8)
+        for k in range(8):
+            attr = leaves["attributes"][f"foliage:{base}{k}"]
+            assert attr["domain"] == "FACE" and attr["data_type"] == "FLOAT", (base, k)
+            assert np.array_equal(np.asarray(attr["values"], dtype=np.float32), packed[:, k]), (base, k)
+    assert np.ptp(packed) > 0
+    lb = np.asarray(pv.GetPrimvar("foliage:lb:scattered").Get(), dtype=np.float32)
+    assert np.allclose(leaves["attributes"]["foliage:lb:scattered"]["values"], lb, rtol=1e-6, atol=0)
+
+
+def test_the_bake_metadata_arrives_as_custom_properties(blender_import):
+    from pxr import Usd
+
+    final, probe = blender_import
+    stage = Usd.Stage.Open(str(final))
+    vol_prim = stage.GetPrimAtPath("/Tree/FoliageLighting")
+    props = _objects(probe, "VOLUME")["FoliageLighting"]["data_props"]
+    assert np.isclose(props["foliage:voxelSize"], vol_prim.GetAttribute("foliage:voxelSize").Get(), rtol=1e-6)
+    assert list(props["foliage:resolution"]) == list(vol_prim.GetAttribute("foliage:resolution").Get())
+    assert props["foliage:method"] == "lb" and props["foliage:version"] == vol_prim.GetAttribute("foliage:version").Get()
+    tree = _objects(probe)["Tree"]["props"]
+    assert np.isclose(tree["foliage:tau"], stage.GetPrimAtPath("/Tree").GetAttribute("foliage:tau").Get(), rtol=1e-6)
+    assert tree["foliage:smax:path"] in ("reference", "fast")
+    assert np.allclose(tree["foliage:lb:sunDirection"], stage.GetPrimAtPath("/Tree").GetAttribute("foliage:lb:sunDirection").Get())
