@@ -23,8 +23,10 @@ demo: setup
 	$(FOLIAGE) validate $(DEMO)/tree_small.lb.usda
 	@echo "demo outputs are in $(DEMO)/: tree_small.lb.usda (the whole bake over the example), .vdb grids, bench.json and bench.png"
 
+# the default suite in TEST_WORKERS processes, whole test files each (module fixtures are built once)
+TEST_WORKERS ?= 2
 test: setup
-	$(PY) -m pytest -m "not slow" -q
+	$(PY) -m pytest -m "not slow" -q -n $(TEST_WORKERS) --dist loadfile
 
 # Blender as a Python module (bpy, ~350 MB) in its own venv: bpy pins its own Python (3.11 for Blender 5.0)
 # and numpy, so it cannot share .venv. tests/integration/test_blender_roundtrip.py runs Blender from it in a
