@@ -158,13 +158,14 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
     # primvars exist only on editable prototypes (a forest of native instances has none: direct light only)
     from foliage_tools.scene.read import read_scene
 
-    from foliage_tools.pipeline.world import WORLD_MAX_TRIANGLES, world_triangles
+    from foliage_tools.pipeline.world import traced_alone, world_triangles
 
     scene = read_scene(path)[0]
     editable = any(p.editable and p.leaves.count for p in scene.prototypes)
     # a forest too large to copy for the rays is also too large to draw in full on a software rasteriser (10 000
     # trees: the sky pass alone ran past 10 minutes): far trees thinned, no sky occlusion, one sample per pixel
-    big = world_triangles(scene) > WORLD_MAX_TRIANGLES
+    placed = world_triangles(scene)
+    big = traced_alone(scene, placed)
     light = {"lod": PREVIEW_LOD, "sky_samples": 0, "samples": 1} if big else {}
     stages["preview"] = _stage(
         "preview", run_preview, lb_out, work / f"{stem}.png",
@@ -174,7 +175,7 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
     )
     if big:
         stages["preview"].warnings.append(
-            f"the forest places {world_triangles(scene):,} triangles: its preview is drawn with --lod {PREVIEW_LOD} "
+            f"the forest places {placed:,} triangles: its preview is drawn with --lod {PREVIEW_LOD} "
             "--sky-samples 0 --samples 1; `foliage preview` of the bake draws it in full.")
     if not editable:
         stages["preview"].warnings.append(

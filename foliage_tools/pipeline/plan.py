@@ -24,7 +24,7 @@ from foliage_tools.pipeline.density import density_grid
 from foliage_tools.pipeline.direct import auto_samples
 from foliage_tools.pipeline.report import Report
 from foliage_tools.pipeline.spp import DEPTH_PATHS, SPP_MAX_PLACEMENTS, depth_path
-from foliage_tools.pipeline.world import WORLD_MAX_TRIANGLES, world_triangles
+from foliage_tools.pipeline.world import traced_alone, world_triangles
 from foliage_tools.scene.read import read_scene
 
 #: All rates from one `make bench` on 2026-11-24 (session 4; AMD EPYC, 2 cores, numba triad 35 GB/s). The
@@ -66,6 +66,11 @@ LB_S_PER_NODE, LB_EXACT_FIRST_ORDER_S_PER_NODE = 1.2e-5, 1.1e-5
 SPP_S_PER_LEAF_PLACEMENT = 6.3e-5
 #: shinya2013 eq. (31) neighbour depths: seconds per instance pair (issue #16: 3.3-3.7 ms).
 SPP_EQ31_S_PER_PAIR = 3.5e-3
+
+
+def ray_scene_bytes(triangles: int) -> float:
+    """Peak resident memory of a ray scene of ``triangles`` placed triangles (:data:`WORLD_BYTES_PER_TRIANGLE`)."""
+    return WORLD_BASE_BYTES + WORLD_BYTES_PER_TRIANGLE * triangles
 
 
 def available_memory() -> float:
@@ -149,12 +154,12 @@ def plan(path: Path, params: PlanParams) -> Report:
     total_s["reference"] = params.reference_paths / REFERENCE_PATHS_PER_S
     world_tris = world_triangles(scene)
     # the bakes' shadow rays and gather trace the whole world, or above WORLD_MAX_TRIANGLES each prototype alone
-    lone = len(scene.instances) > 1 and world_tris > WORLD_MAX_TRIANGLES
+    lone = traced_alone(scene, world_tris)
     instanced = sorted({inst.prototype for inst in scene.instances})
     traced_tris = sum(sum(len(m.triangles) for m in scene.prototypes[i].meshes) for i in instanced) if lone else world_tris
     traced_leaves = sum(scene.prototypes[i].leaves.count for i in instanced) if lone else leaves_total
-    world_bytes = WORLD_BASE_BYTES + WORLD_BYTES_PER_TRIANGLE * traced_tris
-    reference_bytes = WORLD_BASE_BYTES + WORLD_BYTES_PER_TRIANGLE * world_tris  # it always traces every instance
+    world_bytes = ray_scene_bytes(traced_tris)
+    reference_bytes = ray_scene_bytes(world_tris)  # it always traces every instance
     peak = max(peak, world_bytes)
     forest = None
     if len(scene.instances) > 1:

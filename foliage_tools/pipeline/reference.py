@@ -135,10 +135,10 @@ class _ProgressAdapter:
 
 def check_world_fits(scene: Scene) -> None:
     """Refuse, before any work, a scene whose every-instance ray scene would not fit in the memory free now."""
-    from foliage_tools.pipeline.plan import WORLD_BASE_BYTES, WORLD_BYTES_PER_TRIANGLE, available_memory
+    from foliage_tools.pipeline.plan import available_memory, ray_scene_bytes
 
     tris = world_triangles(scene)
-    need = WORLD_BASE_BYTES + WORLD_BYTES_PER_TRIANGLE * tris
+    need = ray_scene_bytes(tris)
     free = available_memory()
     if need > free:
         raise UsageError(

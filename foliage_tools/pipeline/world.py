@@ -45,8 +45,8 @@ class World:
         return slice(int(self.offsets[n]), int(self.offsets[n + 1]))
 
 
-#: Most placed triangles the bakes copy into one world (~170 B each with Embree's scene: ~1.4 GB); a larger
-#: forest is traced as its lone trees (module docstring). 8M is a stand of ~2 000 trees of 4 000 triangles.
+#: Most placed triangles the bakes copy into one world (~760 B each with Embree's scene, pipeline.plan: ~6 GB); a
+#: larger forest is traced as its lone trees (module docstring). 8M is a stand of ~2 000 trees of 4 000 triangles.
 WORLD_MAX_TRIANGLES = 8_000_000
 
 
@@ -80,9 +80,17 @@ def traced_parts(world: World):
         yield world.triangles[tris], np.where(ids >= 0, ids - leaves.start, -1), leaves.stop - leaves.start, leaves
 
 
+def traced_alone(scene: Scene, triangles: int | None = None) -> bool:
+    """Whether the bakes trace the scene as its lone trees: several instances placing more than
+    :data:`WORLD_MAX_TRIANGLES` (``triangles``: :func:`world_triangles` of the scene, if already counted)."""
+    if len(scene.instances) < 2:
+        return False
+    return (world_triangles(scene) if triangles is None else triangles) > WORLD_MAX_TRIANGLES
+
+
 def bake_world(scene: Scene) -> World:
     """The world the bakes trace: the whole scene, or its lone trees above :data:`WORLD_MAX_TRIANGLES`."""
-    if len(scene.instances) > 1 and world_triangles(scene) > WORLD_MAX_TRIANGLES:
+    if traced_alone(scene):
         return replace(assemble(lone_trees(scene)), lone=True)
     return assemble(scene)
 
