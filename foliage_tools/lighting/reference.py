@@ -149,6 +149,7 @@ Pure numerics: no files, no printing.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import os
@@ -161,10 +162,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from foliage_tools.geometry.instanced import InstancedRayScene
 from foliage_tools.geometry.rays import PeriodicRayScene, RayScene
 from foliage_tools.lighting.optics import LeafOptics
 
-__all__ = ["ReferenceInputs", "ReferenceParams", "ReferenceResult", "solve"]
+__all__ = ["Placements", "ReferenceInputs", "ReferenceParams", "ReferenceResult", "solve"]
 
 #: Tally categories (index into the per-leaf incidence tallies).
 _SUN_DIRECT, _SUN_SCATTERED, _SKY_DIRECT, _SKY_SCATTERED = range(4)
@@ -184,6 +186,101 @@ def _unit(v, name: str) -> np.ndarray:
     a = a / n
     a.flags.writeable = False
     return a
+
+
+@dataclass(frozen=True, eq=False)
+class Placements:
+    """A forest as a few prototypes placed many times, traced without copying them (:mod:`foliage_tools.geometry.instanced`).
+
+    Leaf k of instance n tallies into leaf ``leaf_offset[n] + k`` of the result: with every instance's own
+    offsets the result is per leaf of the world, with the prototype's offsets for all its instances it pools each
+    prototype leaf over its instances (power over area summed over them), so the tallies grow with the prototypes,
+    not the instances. Each instance's own means are tallied as well (:attr:`ReferenceResult.instance_direct`).
+    """
+
+    triangles: tuple
+    """Per prototype, (T_p, 3, 3) float64 vertices in the prototype's frame."""
+    leaf_of_triangle: tuple
+    """Per prototype, (T_p,) int leaf index of each triangle within the prototype, -1 for wood."""
+    transforms: np.ndarray
+    """(N, 4, 4) world-from-prototype matrices, column-vector convention."""
+    prototype_of: np.ndarray
+    """(N,) prototype of each instance."""
+    leaf_offset: np.ndarray
+    """(N,) the result's leaf index of each instance's leaf 0."""
+
+    def __post_init__(self) -> None:
+        tris = tuple(np.asarray(t, dtype=np.float64) for t in self.triangles)
+        leaves = tuple(np.asarray(v).astype(np.int64) for v in self.leaf_of_triangle)
+        if len(tris) != len(leaves):
+            raise ValueError(f"{len(tris)} prototypes' triangles but {len(leaves)} leaf_of_triangle arrays")
+        for p, (t, v) in enumerate(zip(tris, leaves)):
+            if t.ndim != 3 or t.shape[1:] != (3, 3) or not np.all(np.isfinite(t)):
+                raise ValueError(f"prototype {p}: triangles must be finite with shape (T, 3, 3), got {t.shape}")
+            if v.shape != (t.shape[0],) or (v.size and v.min() < -1):
+                raise ValueError(f"prototype {p}: leaf_of_triangle must be (T,) = ({t.shape[0]},) ids >= -1")
+        proto = np.asarray(self.prototype_of, dtype=np.int64).reshape(-1)
+        offset = np.asarray(self.leaf_offset, dtype=np.int64).reshape(-1)
+        m = np.asarray(self.transforms, dtype=np.float64)
+        if m.shape != (proto.size, 4, 4) or offset.shape != proto.shape:
+            raise ValueError(f"transforms {m.shape}, prototype_of {proto.shape} and leaf_offset {offset.shape} must "
+                             "describe the same N instances: (N, 4, 4), (N,), (N,)")
+        if proto.size and (proto.min() < 0 or proto.max() >= len(tris)):
+            raise ValueError(f"prototype_of must index the {len(tris)} prototypes")
+        for a in (*tris, *leaves, proto, offset, m):
+            a.flags.writeable = False
+        object.__setattr__(self, "triangles", tris)
+        object.__setattr__(self, "leaf_of_triangle", leaves)
+        object.__setattr__(self, "prototype_of", proto)
+        object.__setattr__(self, "leaf_offset", offset)
+        object.__setattr__(self, "transforms", m)
+
+    @property
+    def n_instances(self) -> int:
+        return int(self.prototype_of.shape[0])
+
+    def leaf_counts(self) -> list[int]:
+        """Leaves of each prototype (1 + its largest leaf id)."""
+        return [int(v.max()) + 1 if v.size and v.max() >= 0 else 0 for v in self.leaf_of_triangle]
+
+    @property
+    def n_result_leaves(self) -> int:
+        """Leaves the result tallies into: past the last instance's last leaf."""
+        counts = self.leaf_counts()
+        return max((int(o) + counts[p] for o, p in zip(self.leaf_offset, self.prototype_of)), default=0)
+
+    @functools.cached_property
+    def areas(self) -> tuple[np.ndarray, np.ndarray]:
+        """One-sided world leaf areas: (:attr:`n_result_leaves`,) of the result's leaves (summed over the instances
+        tallying into each) and (N,) of each instance. A placed triangle's area is |cof(A) a| (a: its area vector
+        in the prototype, cof(A) = det(A) A⁻ᵀ)."""
+        leaf_area = np.zeros(self.n_result_leaves)
+        inst_area = np.zeros(self.n_instances)
+        lin = self.transforms[:, :3, :3]
+        cof = np.linalg.det(lin)[:, None, None] * np.transpose(np.linalg.inv(lin), (0, 2, 1)) if len(lin) else lin
+        for p, (t, v) in enumerate(zip(self.triangles, self.leaf_of_triangle)):
+            sel = np.flatnonzero(self.prototype_of == p)
+            on = v >= 0
+            if sel.size and on.any():
+                a = 0.5 * np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[on]
+                _placed_areas(np.ascontiguousarray(cof[sel]), sel, a, v[on], self.leaf_offset, leaf_area, inst_area)
+        return leaf_area, inst_area
+
+
+@njit(cache=True, nogil=True)
+def _placed_areas(cof, instances, a, leaf, leaf_offset, leaf_area, inst_area):
+    """Add |cof_n a_t| of every leaf triangle t placed by every instance n to its result leaf and its instance."""
+    for q in range(instances.shape[0]):
+        n = instances[q]
+        total = 0.0
+        for t in range(a.shape[0]):
+            x = cof[q, 0, 0] * a[t, 0] + cof[q, 0, 1] * a[t, 1] + cof[q, 0, 2] * a[t, 2]
+            y = cof[q, 1, 0] * a[t, 0] + cof[q, 1, 1] * a[t, 1] + cof[q, 1, 2] * a[t, 2]
+            z = cof[q, 2, 0] * a[t, 0] + cof[q, 2, 1] * a[t, 1] + cof[q, 2, 2] * a[t, 2]
+            area = math.sqrt(x * x + y * y + z * z)
+            leaf_area[leaf_offset[n] + leaf[t]] += area
+            total += area
+        inst_area[n] += total
 
 
 @dataclass(frozen=True, eq=False)
@@ -209,9 +306,21 @@ class ReferenceInputs:
     (requires ``up`` = +z and the sun above the horizon). For tests against plane-parallel solvers."""
     cell_origin: tuple[float, float] = (0.0, 0.0)
     """Lower (x, y) corner of the periodic cell."""
+    placements: Placements | None = None
+    """If set, the scene is these placed prototypes, traced without copies; ``triangles`` and
+    ``leaf_of_triangle`` must then be empty, and ``leaf_area`` holds the area of each result leaf
+    (summed over the instances that tally into it)."""
 
     def __post_init__(self) -> None:
         tri = np.asarray(self.triangles, dtype=np.float64)
+        if self.placements is not None:
+            if not isinstance(self.placements, Placements):
+                raise TypeError(f"placements must be a Placements, got {type(self.placements).__name__}")
+            if len(tri) or self.period is not None:
+                raise ValueError("placements replace triangles (give an empty (0, 3, 3) array) and cannot be periodic")
+            need = self.placements.n_result_leaves
+            if need > np.asarray(self.leaf_area).size:
+                raise ValueError(f"placements tally into {need} leaves but leaf_area has {np.asarray(self.leaf_area).size}")
         if tri.ndim != 3 or tri.shape[1:] != (3, 3):
             raise ValueError(f"triangles must have shape (T, 3, 3), got {tri.shape}")
         if not np.all(np.isfinite(tri)):
@@ -381,6 +490,12 @@ class ReferenceResult:
     """Threads used (does not affect the values)."""
     truncated: int
     """Paths abandoned (``max_events`` reached, or a periodic ray crossing too many cells); 0 normally."""
+    instance_direct: np.ndarray | None = None
+    """With placements: (N, 3) each instance's leaf-area-weighted mean E_direct; else None."""
+    instance_scattered: np.ndarray | None = None
+    """With placements: (N, 3) each instance's leaf-area-weighted mean E_scattered; else None."""
+    noise_rel_instance: float = math.nan
+    """With placements: the two-halves relative RMS noise of ``instance_direct + instance_scattered``."""
 
     @property
     def e_total(self) -> np.ndarray:
@@ -527,6 +642,78 @@ class _SurfaceSunSource:
         seen = ~self.scene.occluded(origins, np.broadcast_to(self.sun, origins.shape))
         d = np.broadcast_to(-self.sun, (int(seen.sum()), 3)).copy()
         return t[seen], p[seen], d, np.full((d.shape[0], 3), weight), weight
+
+
+class _PlacedSunSource:
+    """:class:`_SurfaceSunSource` over placed prototypes, without a per-instance triangle list.
+
+    The beam deposits on instance i the power P_i = Σ_t |a'_t·s| over its placed triangles, whose area
+    vectors are a'_t = cof(A_i) a_t (a_t: the prototype triangle's area vector), so P_i = Σ_t |a_t·σ_i| with
+    σ_i = cof(A_i)ᵀ s = det(A_i) A_i⁻¹ s. Points are drawn in two stages: instances by systematic sampling over
+    P_i (each gets its expected count k P_i / P rounded up or down), then within the instance a prototype
+    triangle with probability A_t / A (its share of the prototype's area) and a uniform point on it (uniform
+    in the world too: the map is affine). A point's weight is P · A |n_t·σ_i| / P_i, the ratio of the target
+    density (∝ |a'_t·s|) to the one drawn, so the expected power of each triangle is its |a'_t·s| V as in
+    :class:`_SurfaceSunSource`; the weights average P per point and vary with |n·s| within an instance.
+    """
+
+    def __init__(self, scene: InstancedRayScene, placements: Placements, sun: np.ndarray, incident: float) -> None:
+        self.scene = scene
+        self.sun = sun
+        self.pl = placements
+        lin = placements.transforms[:, :3, :3]
+        sigma = np.linalg.det(lin)[:, None] * np.einsum("nij,j->ni", np.linalg.inv(lin), sun) if len(lin) else \
+            np.zeros((0, 3))
+        self.sigma = sigma
+        self.area_vec, self.cum_area = [], []
+        proj = np.zeros(placements.n_instances)
+        for p, tri in enumerate(placements.triangles):
+            a = 0.5 * np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            self.area_vec.append(a)
+            self.cum_area.append(np.cumsum(np.linalg.norm(a, axis=1)))
+            sel = np.flatnonzero(placements.prototype_of == p)
+            for chunk in np.array_split(sel, max(1, sel.size // 256)):
+                if chunk.size and len(a):
+                    proj[chunk] = np.abs(a @ sigma[chunk].T).sum(axis=0)
+        self.proj = proj
+        self.cum = np.cumsum(proj)
+        self.projected = float(self.cum[-1]) if self.cum.size else 0.0
+        self.offset = scene.offset_distance()
+        self.power = incident
+
+    def first_hits(self, rng: np.random.Generator, k: int):
+        """((instance, triangle), points, directions, weights) of the drawn points that see the sun, and the mean weight."""
+        weight = self.projected
+        none = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        if self.projected <= 0.0 or k == 0:
+            return none, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), weight
+        target = (np.arange(k) + rng.random()) * (self.projected / k)
+        inst = np.minimum(np.searchsorted(self.cum, target, side="right"), self.cum.size - 1)
+        pick, uv = rng.random(k), rng.random((k, 2))
+        fold = uv.sum(axis=1) > 1.0
+        uv[fold] = 1.0 - uv[fold]
+        tri = np.zeros(k, np.int64)
+        local = np.zeros((k, 3))
+        w = np.zeros(k)
+        for p, (verts, a, cum) in enumerate(zip(self.pl.triangles, self.area_vec, self.cum_area)):
+            sel = np.flatnonzero(self.pl.prototype_of[inst] == p)
+            if sel.size == 0:
+                continue
+            t = np.minimum(np.searchsorted(cum, pick[sel] * cum[-1], side="right"), cum.size - 1)
+            tri[sel] = t
+            v0 = verts[t, 0]
+            local[sel] = v0 + uv[sel, :1] * (verts[t, 1] - v0) + uv[sel, 1:] * (verts[t, 2] - v0)
+            i = inst[sel]
+            w[sel] = self.projected * cum[-1] * np.abs(np.einsum("kj,kj->k", a[t], self.sigma[i])) / (
+                np.linalg.norm(a[t], axis=1) * self.proj[i])
+        lin = self.pl.transforms[inst, :3, :3]
+        p = np.einsum("kij,kj->ki", lin, local) + self.pl.transforms[inst, :3, 3]
+        n = self.scene.world_normals(inst, tri)
+        side = np.where(n @ self.sun >= 0.0, 1.0, -1.0)[:, None] * n
+        origins = p + self.offset * side
+        seen = ~self.scene.occluded(origins, np.broadcast_to(self.sun, origins.shape))
+        d = np.broadcast_to(-self.sun, (int(seen.sum()), 3)).copy()
+        return (inst[seen], tri[seen]), p[seen], d, np.repeat(w[seen, None], 3, axis=1), weight
 
 
 class _SkySource:
@@ -689,18 +876,19 @@ class _Tally:
     hits: np.ndarray  # (L,) int64
     truncated: int
     intercepted: np.ndarray  # (3,) surface sun source: power of the first hits drawn
+    instances: np.ndarray  # (4 N, 3): [instance * 4 + category], placements only (N = 0 otherwise)
 
     @classmethod
-    def zeros(cls, n_leaves: int) -> _Tally:
+    def zeros(cls, n_leaves: int, n_instances: int = 0) -> _Tally:
         return cls(
             np.zeros((4 * n_leaves, 3)), np.zeros((n_leaves, 3)), np.zeros(3), np.zeros(3),
-            np.zeros(n_leaves, dtype=np.int64), 0, np.zeros(3),
+            np.zeros(n_leaves, dtype=np.int64), 0, np.zeros(3), np.zeros((4 * n_instances, 3)),
         )
 
     def scaled(self, f: float) -> _Tally:
         """A copy with every power multiplied by f (counts unchanged)."""
         return _Tally(self.incidence * f, self.absorbed * f, self.absorbed_wood * f, self.escaped * f,
-                      self.hits.copy(), self.truncated, self.intercepted * f)
+                      self.hits.copy(), self.truncated, self.intercepted * f, self.instances * f)
 
     def add(self, other: _Tally) -> None:
         self.incidence += other.incidence
@@ -710,6 +898,7 @@ class _Tally:
         self.hits += other.hits
         self.truncated += other.truncated
         self.intercepted += other.intercepted
+        self.instances += other.instances
 
 
 class _Tracer:
@@ -719,38 +908,84 @@ class _Tracer:
         self.ev_fraction = ev_fraction
         self.split = split
         self.periodic = inputs.period is not None
-        if self.periodic:
+        self.placements = inputs.placements
+        self.n_leaves = inputs.n_leaves
+        self.n_instances = 0
+        opt = inputs.optics
+        # r + t = 1 in floating point leaves residues of ~1e-16: albedo 1 absorbs exactly nothing
+        # (rows: 0 wood (ρ, 0), 1 leaf (r, t))
+        self.r2 = np.stack([opt.wood_reflectance, opt.reflectance])
+        self.t2 = np.stack([np.zeros(3), opt.transmittance])
+        a2 = 1.0 - self.r2 - self.t2
+        self.a2 = np.where(a2 > 1e-12, a2, 0.0)
+        if self.placements is not None:
+            pl = self.placements
+            self.scene = InstancedRayScene(pl.triangles, pl.transforms, pl.prototype_of)
+            self.n_instances = pl.n_instances
+        elif self.periodic:
             self.scene = PeriodicRayScene(inputs.triangles, period=inputs.period, origin=inputs.cell_origin)
         else:
             self.scene = RayScene(inputs.triangles)
-        self.normals = self.scene.normals
         self.offset = self.scene.offset_distance()
-        self.leaf = inputs.leaf_of_triangle
-        self.n_leaves = inputs.n_leaves
-        opt = inputs.optics
-        # per-triangle r and t: leaves (r, t), wood (ρ, 0)
-        is_wood = self.leaf < 0
-        self.r = np.where(is_wood[:, None], opt.wood_reflectance[None, :], opt.reflectance[None, :])
-        self.t = np.where(is_wood[:, None], 0.0, opt.transmittance[None, :])
-        # r + t = 1 in floating point leaves residues of ~1e-16: albedo 1 absorbs exactly nothing
-        a = 1.0 - self.r - self.t
-        self.a = np.where(a > 1e-12, a, 0.0)
+        if self.placements is None:
+            self.normals = self.scene.normals
+            self.leaf = inputs.leaf_of_triangle
+            # per-triangle r and t: leaves (r, t), wood (ρ, 0)
+            kind = (self.leaf >= 0).astype(np.int64)
+            self.r, self.t, self.a = self.r2[kind], self.t2[kind], self.a2[kind]
         self.max_events = max_events
 
     def first_hits(self, o, d):
-        """(tri_id, hit points) for rays; -1 / undefined points for escapes."""
+        """(hits, hit points, truncated) for rays; ``hits`` is the triangle id (-1 for escapes) or, with
+        placements, the (instance, prototype triangle) pair (-1, -1 for escapes)."""
         if self.periodic:
             h = self.scene.intersect(o, d)
             return h.tri_id, h.points, h.truncated
+        if self.placements is not None:
+            inst, tri, t = self.scene.intersect(o, d)
+            pts = o + np.where(inst >= 0, t, 0.0)[:, None] * d
+            return (inst, tri), pts, None
         tri, t = self.scene.intersect(o, d)
         pts = o + np.where(tri >= 0, t, 0.0)[:, None] * d
         return tri, pts, None
 
+    def surfaces(self, hits):
+        """What ``_process_hits`` reads of the surfaces hit: (ids, leaf of id, normals, r, t, a).
+
+        Over copied triangles the ids are the triangles; with placements each hit gets its own id 0..k-1 and
+        rows of its own (its result leaf, its world normal, its optics), so nothing grows with the instances.
+        """
+        if self.placements is None:
+            return hits, self.leaf, self.normals, self.r, self.t, self.a
+        inst, tri = hits
+        pl = self.placements
+        hit = inst >= 0
+        ids = np.where(hit, np.arange(inst.size), -1)
+        i, t = np.where(hit, inst, 0), np.where(hit, tri, 0)
+        local = np.full(inst.size, -1, np.int64)
+        for p, leaf_ids in enumerate(pl.leaf_of_triangle):
+            sel = np.flatnonzero(hit & (pl.prototype_of[i] == p))
+            local[sel] = leaf_ids[t[sel]]
+        leaf = np.where(local >= 0, pl.leaf_offset[i] + local, -1)
+        normals = self.scene.world_normals(i, t)
+        kind = (local >= 0).astype(np.int64)
+        return ids, leaf, normals, self.r2[kind], self.t2[kind], self.a2[kind]
+
+    def tally_instances(self, hits, leaf, w, scattered, first_category, out) -> None:
+        """Add each photon arriving at a leaf to its instance's tally (placements only)."""
+        if self.placements is None:
+            return
+        inst = hits[0]
+        on = np.flatnonzero(leaf >= 0)
+        key = inst[on] * 4 + first_category + scattered[on].astype(np.int64)
+        for c in range(3):
+            out[:, c] += np.bincount(key, weights=w[on, c], minlength=out.shape[0])
+
     def run(self, source, rng: np.random.Generator, k: int, sky: bool) -> _Tally:
-        tally = _Tally.zeros(self.n_leaves)
+        tally = _Tally.zeros(self.n_leaves, self.n_instances)
         escaped = np.zeros(3)
         first_category = _SKY_DIRECT if sky else _SUN_DIRECT
-        surface = isinstance(source, _SurfaceSunSource)
+        surface = isinstance(source, (_SurfaceSunSource, _PlacedSunSource))
         split = self.split if surface else 1
         o_out, d_out, w_out = (np.empty((k * split, 3)) for _ in range(3))
         if surface:
@@ -759,7 +994,9 @@ class _Tracer:
             if split > 1:
                 # splitting at the first hit: each first hit goes on as `split` photons of 1/split its power,
                 # each with its own scattering event and direction (the shadow ray is paid once)
-                tri0, pts0, d, w = np.repeat(tri0, split), np.repeat(pts0, split, 0), np.repeat(d, split, 0), \
+                rep = (lambda a: tuple(np.repeat(x, split) for x in a)) if isinstance(tri0, tuple) else \
+                    (lambda a: np.repeat(a, split))
+                tri0, pts0, d, w = rep(tri0), np.repeat(pts0, split, 0), np.repeat(d, split, 0), \
                     np.repeat(w / split, split, 0)
             o = pts0
             w_min = 3.0 * weight * self.ev_fraction / split
@@ -781,8 +1018,10 @@ class _Tracer:
                 d, w, scattered, tri, pts = d[keep], w[keep], scattered[keep], tri[keep], pts[keep]
                 n = tri.shape[0]
             u = rng.random((n, 3))
+            ids, leaf, normals, refl, trans, absp = self.surfaces(tri)
+            self.tally_instances(tri, leaf, w, scattered, first_category, tally.instances)
             m = _process_hits(
-                tri, pts, d, w, scattered, self.leaf, self.normals, self.r, self.t, self.a, u, self.offset,
+                ids, pts, d, w, scattered, leaf, normals, refl, trans, absp, u, self.offset,
                 first_category, not sky, w_min, tally.incidence, tally.absorbed, tally.absorbed_wood, escaped,
                 tally.hits, o_out, d_out, w_out,
             )
@@ -807,9 +1046,11 @@ def _batches(paths: int, batch_size: int) -> list[int]:
     return [paths // n + (1 if i < paths % n else 0) for i in range(n)]
 
 
-def _geometry(inputs: ReferenceInputs, z_top: float | None) -> _Geometry:
+def _geometry(inputs: ReferenceInputs, z_top: float | None, bounds: np.ndarray | None = None) -> _Geometry:
     tri = inputs.triangles
-    if tri.shape[0]:
+    if bounds is not None:
+        lo, hi = bounds
+    elif tri.shape[0]:
         lo = tri.reshape(-1, 3).min(axis=0)
         hi = tri.reshape(-1, 3).max(axis=0)
     else:
@@ -874,7 +1115,7 @@ def solve(
     workers = int(params.workers) if params.workers is not None else max(1, os.cpu_count() or 1)
     tracer = _Tracer(inputs, params.max_events, float(params.survival_weight), int(params.split))
     z_top = tracer.scene.z_range[1] if tracer.periodic else None
-    geo = _geometry(inputs, z_top)
+    geo = _geometry(inputs, z_top, tracer.scene.bounds if inputs.placements is not None else None)
     if params.noise_target is None:
         sun_sizes = _batches(params.paths, params.batch_size)
     else:  # whole batches, so a run stopped after n of them equals a run of n x batch_size paths
@@ -884,7 +1125,9 @@ def solve(
             sun_sizes = _batches(params.paths, params.batch_size)
     sky_sizes = _batches(sky_paths, params.batch_size) if has_sky else []
     sun = _SunSource(geo, inputs.sun_direction, params.paths)
-    if params.sun_sampling == "surface":
+    if params.sun_sampling == "surface" and inputs.placements is not None:
+        sun = _PlacedSunSource(tracer.scene, inputs.placements, inputs.sun_direction, sun.power)
+    elif params.sun_sampling == "surface":
         sun = _SurfaceSunSource(tracer.scene, inputs.triangles, inputs.sun_direction, sun.power)
     sky = _SkySource(geo, inputs.up, inputs.sky_radiance, sky_paths) if has_sky else None
     root_sun, root_sky = np.random.SeedSequence(params.seed).spawn(2)
@@ -898,10 +1141,11 @@ def solve(
         return tracer.run(source, np.random.default_rng(seq), size, is_sky)
 
     n_leaves = inputs.n_leaves
+    n_inst = tracer.n_instances
     # per half (even / odd batch index): sun tallies in units of power x paths (divided by the
     # sun paths traced at the end, which a noise target decides), sky tallies normalised
-    sun_h = [_Tally.zeros(n_leaves), _Tally.zeros(n_leaves)]
-    sky_h = [_Tally.zeros(n_leaves), _Tally.zeros(n_leaves)]
+    sun_h = [_Tally.zeros(n_leaves, n_inst), _Tally.zeros(n_leaves, n_inst)]
+    sky_h = [_Tally.zeros(n_leaves, n_inst), _Tally.zeros(n_leaves, n_inst)]
     half_paths = [0, 0]
     done = 0
     area = inputs.leaf_area
@@ -946,7 +1190,7 @@ def solve(
             future.cancel()
         pool.shutdown(wait=True)
     sun_paths = half_paths[0] + half_paths[1]
-    full = _Tally.zeros(n_leaves)
+    full = _Tally.zeros(n_leaves, n_inst)
     if sun_paths:
         full.add(sun_h[0].scaled(1.0 / sun_paths))
         full.add(sun_h[1].scaled(1.0 / sun_paths))
@@ -961,7 +1205,20 @@ def solve(
         noise = noise_total = noise_direct = math.nan
     incident = np.full(3, sun.power if sun_paths else 0.0)
     escaped = full.escaped.copy()
-    if isinstance(sun, _SurfaceSunSource):
+    instance_direct = instance_scattered = None
+    noise_instance = math.nan
+    if inputs.placements is not None:
+        _, inst_area = inputs.placements.areas
+        safe = np.where(inst_area > 0, inst_area, 1.0)[:, None]
+        per = full.instances.reshape(n_inst, 4, 3)
+        instance_direct = np.where(inst_area[:, None] > 0, per[:, _SUN_DIRECT] / safe, 0.0)
+        instance_scattered = np.where(inst_area[:, None] > 0, per[:, _SUN_SCATTERED] / safe, 0.0)
+        if sun_paths:
+            n = half_paths[0] + half_paths[1]
+            a, b = (h.instances.reshape(n_inst, 4, 3)[:, _SUN_DIRECT] + h.instances.reshape(n_inst, 4, 3)[:, _SUN_SCATTERED]
+                    for h in sun_h)
+            noise_instance = _noise(a / n, b / n, half_paths[0], half_paths[1], safe[:, 0])
+    if isinstance(sun, (_SurfaceSunSource, _PlacedSunSource)):
         # the beam's power that reaches no surface leaves the scene: incident - intercepted
         escaped += incident - full.intercepted
         intercepted = full.intercepted
@@ -995,4 +1252,7 @@ def solve(
         seed=int(params.seed),
         workers=workers,
         truncated=int(full.truncated),
+        instance_direct=None if instance_direct is None else frozen(instance_direct),
+        instance_scattered=None if instance_scattered is None else frozen(instance_scattered),
+        noise_rel_instance=float(noise_instance),
     )

@@ -69,7 +69,7 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
 
     t0 = time.perf_counter()
     ref = bake_reference(scene, sun, ReferenceParams(optics=params.optics, paths=params.paths, seed=params.seed,
-                                                     noise=params.noise), progress)
+                                                     noise=params.noise), progress, flat=True)  # every leaf compared
     ref_seconds = time.perf_counter() - t0
     world, res = ref.world, ref.result
     n = int(world.offsets[-1])

@@ -46,6 +46,11 @@ SPP_RAYS_PER_S = 6.5e5
 #: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py: 3.9e6 on a 2k-leaf crown;
 #: `foliage bench` on the example, setup included: 8M paths in 3.8 s).
 REFERENCE_PATHS_PER_S = 2.0e6
+#: The reference traced through placed prototypes (a forest above WORLD_MAX_TRIANGLES, geometry.instanced): sun
+#: paths per second and resident memory per instance beside the prototypes' ray scenes (`foliage reference --paths
+#: 4000000` on bench_forest.py's 100 x 100 stand of 5k/10k/20k-leaf trees: 8.9 s tracing, 10.5 s and 0.63 GB in
+#: all; 2026-12-02).
+PLACED_REFERENCE_PATHS_PER_S, PLACED_REFERENCE_BYTES_PER_INSTANCE = 4.5e5, 2.0e4
 #: Exact direct sunlight (--direct rays): shadow rays per second on 2 threads, BVH build included
 #: (bench_direct.py, generated lobed trees).
 DIRECT_RAYS_PER_S = 1.2e6
@@ -151,7 +156,6 @@ def plan(path: Path, params: PlanParams) -> Report:
             f"the LB bake would hold ~{peak / 1e9:.1f} GB, more than the {avail / 1e9:.1f} GB of memory free now: "
             "lower --resolution, or use --bases sun (1/18 of the memory)."
         )
-    total_s["reference"] = params.reference_paths / REFERENCE_PATHS_PER_S
     world_tris = world_triangles(scene)
     # the bakes' shadow rays and gather trace the whole world, or above WORLD_MAX_TRIANGLES each prototype alone
     lone = traced_alone(scene, world_tris)
@@ -159,7 +163,12 @@ def plan(path: Path, params: PlanParams) -> Report:
     traced_tris = sum(sum(len(m.triangles) for m in scene.prototypes[i].meshes) for i in instanced) if lone else world_tris
     traced_leaves = sum(scene.prototypes[i].leaves.count for i in instanced) if lone else leaves_total
     world_bytes = ray_scene_bytes(traced_tris)
-    reference_bytes = ray_scene_bytes(world_tris)  # it always traces every instance
+    if lone:  # the reference traces the placed prototypes, nothing copied (pipeline.reference.placed_inputs)
+        total_s["reference"] = params.reference_paths / PLACED_REFERENCE_PATHS_PER_S
+        reference_bytes = world_bytes + PLACED_REFERENCE_BYTES_PER_INSTANCE * len(scene.instances)
+    else:  # every instance copied into one ray scene
+        total_s["reference"] = params.reference_paths / REFERENCE_PATHS_PER_S
+        reference_bytes = ray_scene_bytes(world_tris)
     peak = max(peak, world_bytes)
     forest = None
     if len(scene.instances) > 1:

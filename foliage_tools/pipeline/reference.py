@@ -2,7 +2,14 @@
 
 Per-leaf primvars are per prototype: for a prototype with several instances
 they hold the mean over its instances (``foliage bench`` compares every
-instance's own values).
+instance's own values). Each instance's own means are written as
+``foliage:ref:instanceDirect`` / ``:instanceScattered`` (pipeline.instances).
+
+A forest the bakes trace as its lone trees (more than
+``world.WORLD_MAX_TRIANGLES`` placed triangles) is traced through its placed
+prototypes, one ray scene each (geometry.instanced), so its memory grows with
+the prototypes, not the instances; its tallies are then each prototype leaf
+pooled over its instances (power over summed area) and each instance's means.
 """
 
 from __future__ import annotations
@@ -21,8 +28,9 @@ from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
-from foliage_tools.pipeline.instances import bake_instance_edits
-from foliage_tools.pipeline.world import World, assemble, prototype_means, world_triangles
+from foliage_tools.pipeline.instances import bake_instance_edits, instance_edits
+from foliage_tools.pipeline.world import (WORLD_MAX_TRIANGLES, World, assemble, pooled_leaf_offsets, prototype_geometry, prototype_means,
+                                          traced_alone, world_triangles)
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
 
@@ -113,8 +121,18 @@ class ReferenceParams:
 
 @dataclass(frozen=True)
 class ReferenceBake:
-    world: World
+    world: World | None
+    """Every instance copied, its leaves the result's; None when the forest was traced through its placements."""
     result: reference.ReferenceResult
+    pooled: np.ndarray | None = None
+    """Traced through placements: (P + 1,) first result leaf of each prototype (its leaves pooled over its
+    instances; ``result.instance_direct`` / ``instance_scattered`` hold each instance's means)."""
+
+    def prototype_values(self, per_leaf: np.ndarray, counts: list[int]) -> list[np.ndarray]:
+        """Per prototype, its leaves' values: the mean over its instances (pooled, or :func:`prototype_means`)."""
+        if self.pooled is None:
+            return prototype_means(self.world, per_leaf, len(counts), counts)
+        return [per_leaf[self.pooled[p]:self.pooled[p + 1]] for p in range(len(counts))]
 
 
 class _ProgressAdapter:
@@ -144,28 +162,63 @@ def check_world_fits(scene: Scene) -> None:
         raise UsageError(
             f"the Monte Carlo reference traces every instance: {len(scene.instances):,} instances place {tris:,} "
             f"triangles, ~{need / 1e9:.1f} GB, more than the {free / 1e9:.1f} GB free now (its ray scene copies each "
-            f"instance; embreex has no instancing). Trace a smaller part of the forest (a stand around the trees you "
-            f"check) or free memory; `foliage plan` shows the figure.")
+            f"instance, so that every leaf of every instance is tallied; a forest above "
+            f"{WORLD_MAX_TRIANGLES:,} placed triangles is traced through its placements instead, pooled per "
+            f"prototype leaf). Trace a smaller part of the forest (a stand around the trees you check) or free "
+            f"memory; `foliage plan` shows the figure.")
 
 
-def bake_reference(scene: Scene, sun: Sun, params: ReferenceParams, progress: Progress) -> ReferenceBake:
-    check_world_fits(scene)
-    world = assemble(scene)
+def placed_inputs(scene: Scene, sun: Sun, optics: LeafOptics) -> tuple[reference.ReferenceInputs, np.ndarray]:
+    """The reference's inputs for a forest traced through its placed prototypes, nothing copied: each prototype
+    leaf pooled over its instances (and each instance's means tallied apart). Also the prototypes' first leaves."""
+    tris, leaves = prototype_geometry(scene)
+    pooled = pooled_leaf_offsets(scene)
+    proto = np.array([i.prototype for i in scene.instances], dtype=np.int64)
+    placements = reference.Placements(tris, leaves, np.array([i.transform for i in scene.instances]), proto,
+                                      pooled[proto])
+    area = np.zeros(int(pooled[-1]))
+    area[:placements.n_result_leaves] = placements.areas[0]
     inputs = reference.ReferenceInputs(
-        triangles=world.triangles,
-        leaf_of_triangle=world.leaf_of_triangle,
-        leaf_area=world.leaf_area,
-        optics=params.optics,
-        sun_direction=sun.direction,
-        up=scene.up,
-    )
+        triangles=np.zeros((0, 3, 3)), leaf_of_triangle=np.zeros(0, np.int64),
+        leaf_area=np.where(area > 0, area, 1.0),  # leaves of a prototype no instance places: never tallied
+        optics=optics, sun_direction=sun.direction, up=scene.up, placements=placements)
+    return inputs, pooled
+
+
+def bake_reference(scene: Scene, sun: Sun, params: ReferenceParams, progress: Progress, *,
+                   flat: bool = False) -> ReferenceBake:
+    """Trace the reference through the scene.
+
+    A forest the bakes trace as lone trees (:func:`~foliage_tools.pipeline.world.traced_alone`) is traced through
+    its placed prototypes (:func:`placed_inputs`): memory grows with the prototypes, not the instances. Otherwise,
+    or with ``flat`` (``bench``, which compares every leaf of every instance), every instance is copied into one
+    ray scene, refused up front when that would not fit (:func:`check_world_fits`).
+    """
     # Sun only: every per-leaf output (the reference's primvars, every method's E_direct / E_scattered)
     # is the sun's light, so sky photons would cost time and change nothing written.
     rp = reference.ReferenceParams(paths=params.paths, seed=params.seed, workers=params.workers, noise_target=params.noise)
     goal = f" (until the noise is {params.noise:g})" if params.noise else ""
-    message = f"tracing up to {params.paths:,} sun paths{goal} through {len(world.triangles):,} triangles"
+    if not flat and traced_alone(scene):
+        inputs, pooled = placed_inputs(scene, sun, params.optics)
+        world = None
+        where = (f"{len(scene.instances):,} placed instances of {len(scene.prototypes)} prototype(s) "
+                 f"({sum(len(t) for t in inputs.placements.triangles):,} triangles, not copied)")
+    else:
+        check_world_fits(scene)
+        world = assemble(scene)
+        pooled = None
+        inputs = reference.ReferenceInputs(
+            triangles=world.triangles,
+            leaf_of_triangle=world.leaf_of_triangle,
+            leaf_area=world.leaf_area,
+            optics=params.optics,
+            sun_direction=sun.direction,
+            up=scene.up,
+        )
+        where = f"{len(world.triangles):,} triangles"
+    message = f"tracing up to {params.paths:,} sun paths{goal} through {where}"
     result = reference.solve(inputs, rp, progress=_ProgressAdapter(progress, message))
-    return ReferenceBake(world, result)
+    return ReferenceBake(world, result, pooled)
 
 
 def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: Progress | None = None) -> Report:
@@ -174,8 +227,8 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
     bake = bake_reference(scene, sun, params, progress)
     res = bake.result
     counts = [p.leaves.count for p in scene.prototypes]
-    direct = prototype_means(bake.world, res.e_direct, len(counts), counts)
-    scattered = prototype_means(bake.world, res.e_scattered, len(counts), counts)
+    direct = bake.prototype_values(res.e_direct, counts)
+    scattered = bake.prototype_values(res.e_scattered, counts)
     edits = LayerEdits()
     for i, proto in enumerate(scene.prototypes):
         if not proto.leaves.count:
@@ -206,7 +259,11 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
             f"falls as 1/sqrt(paths): about {max(1, int(math.ceil(res.paths * (res.noise_rel / params.noise) ** 2 / 1e6))):,}M "
             "would do)."
         )
-    pv, at = bake_instance_edits(scene, "ref", bake.world, res.e_direct, res.e_scattered)  # where each instance stands
+    if bake.world is None:  # traced through placements: each instance's own tallies
+        pv, at = instance_edits(scene, "ref", {"instanceDirect": res.instance_direct,
+                                               "instanceScattered": res.instance_scattered})
+    else:  # where each instance stands
+        pv, at = bake_instance_edits(scene, "ref", bake.world, res.e_direct, res.e_scattered)
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")
@@ -220,7 +277,8 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
         "noise_rel_total": float(res.noise_rel_total),
         "noise_rel_direct": float(res.noise_rel_direct),
         "noise_target": params.noise,
-        "leaves": int(bake.world.offsets[-1]),
+        "leaves": sum(counts[i.prototype] for i in scene.instances),
+        "noise_rel_instance": float(res.noise_rel_instance),
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(),
         "energy": {

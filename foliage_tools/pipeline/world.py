@@ -140,3 +140,25 @@ def prototype_means(world: World, per_leaf: np.ndarray, n_prototypes: int, leave
         out[p] += per_leaf[world.instance_slice(n)]
         counts[p] += 1
     return [o / c if c else o for o, c in zip(out, counts)]
+
+
+def prototype_geometry(scene: Scene) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per prototype, its triangles in its own frame and their leaf ids within it (-1 for wood), in the order
+    :func:`assemble` places them."""
+    tris, leaves = [], []
+    for proto in scene.prototypes:
+        t, ids = [], []
+        for mesh_index, mesh in enumerate(proto.meshes):
+            t.append(mesh.triangle_vertices())
+            if mesh.is_leaf:
+                ids.append(proto.leaves.face_leaf_ids[mesh_index][mesh.face_of_triangle])
+            else:
+                ids.append(np.full(len(mesh.triangles), -1, dtype=np.int64))
+        tris.append(np.concatenate(t) if t else np.zeros((0, 3, 3)))
+        leaves.append(np.concatenate(ids).astype(np.int64) if ids else np.zeros(0, np.int64))
+    return tris, leaves
+
+
+def pooled_leaf_offsets(scene: Scene) -> np.ndarray:
+    """(P + 1,) first leaf of each prototype when its leaves are pooled over its instances (last: the total)."""
+    return np.concatenate([[0], np.cumsum([p.leaves.count for p in scene.prototypes])]).astype(np.int64)
