@@ -89,13 +89,15 @@ def instance_edits(scene: Scene, method: str, values: dict[str, np.ndarray]) -> 
 
 
 def bake_instance_edits(scene: Scene, method: str, world: World, e_direct: np.ndarray, e_scattered: np.ndarray,
-                        forest=None) -> tuple[list[PrimvarEdit], list[AttributeEdit]]:
+                        forest=None, exact_direct=None) -> tuple[list[PrimvarEdit], list[AttributeEdit]]:
     """The per-instance means of a bake's per-global-leaf E_direct ((L,) or (L, 3)) and E_scattered ((L, 3)).
 
     ``forest`` (a ``pipeline.forest.ForestLight``): its factors multiply the scattered means of a method that lit
     each prototype alone, and are written too (``instanceScale``). Over a lone world (``world.bake_world``: a
     forest traced as its lone trees) every instance starts from its prototype's lone mean, and the direct mean is
-    multiplied by the forest's direct factor as well (``instanceDirectScale``).
+    multiplied by the forest's direct factor as well (``instanceDirectScale``), unless ``exact_direct`` (a
+    ``pipeline.direct.DirectBake``) traced each instance's direct mean through the placed forest: that mean is then
+    written, and its ratio to the lone tree's as the scale.
     """
     d = np.asarray(e_direct, dtype=np.float64)
     if d.ndim == 1:
@@ -106,7 +108,11 @@ def bake_instance_edits(scene: Scene, method: str, world: World, e_direct: np.nd
         row = {int(p): r for r, p in enumerate(world.instance_prototype)}
         rows = [row[inst.prototype] for inst in scene.instances]
         direct, scattered = direct[rows], scattered[rows]
-        if forest is not None:
+        if exact_direct is not None and exact_direct.instances is not None:
+            traced = np.repeat(np.asarray(exact_direct.instances.e_direct)[:, None], 3, axis=1)
+            values["instanceDirectScale"] = np.divide(traced, direct, out=np.ones_like(traced), where=direct > 0)
+            direct = traced
+        elif forest is not None:
             direct = direct * forest.direct_factors
             values["instanceDirectScale"] = np.asarray(forest.direct_factors, dtype=np.float64)
     values.update({"instanceDirect": direct, "instanceScattered": scattered})

@@ -342,7 +342,8 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
 
     # the neighbours' scattered light (a gather traced it already)
     forest = forest_light(scene, sun, params.optics, progress=progress) if gathered is None or world.lone else None
-    pv, at = bake_instance_edits(scene, "lb", world, direct_all, scattered_all, forest=forest)
+    pv, at = bake_instance_edits(scene, "lb", world, direct_all, scattered_all, forest=forest,
+                                 exact_direct=exact)
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")

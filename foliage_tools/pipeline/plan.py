@@ -21,7 +21,7 @@ from foliage_tools.lighting.envelope import AUTO_FAST_THRESHOLD
 from foliage_tools.lighting.lb import PLAIN_ITERATION_FIELDS, memory_bytes
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import density_grid
-from foliage_tools.pipeline.direct import auto_samples
+from foliage_tools.pipeline.direct import auto_samples, instance_samples
 from foliage_tools.pipeline.report import Report
 from foliage_tools.pipeline.spp import DEPTH_PATHS, SPP_MAX_PLACEMENTS, depth_path
 from foliage_tools.pipeline.world import traced_alone, world_triangles
@@ -51,6 +51,9 @@ REFERENCE_PATHS_PER_S = 2.0e6
 #: 4000000` on bench_forest.py's 100 x 100 stand of 5k/10k/20k-leaf trees: 8.9 s tracing, 10.5 s and 0.63 GB in
 #: all; 2026-12-02).
 PLACED_REFERENCE_PATHS_PER_S, PLACED_REFERENCE_BYTES_PER_INSTANCE = 4.5e5, 2.0e4
+#: Each instance's direct mean through the placed forest (pipeline.direct.instance_direct): shadow rays per second
+#: (bench_forest.py's 100 x 100 stand, 4096 per instance: 41M rays in 59 s; 2026-12-02).
+PLACED_DIRECT_RAYS_PER_S = 6.9e5
 #: Exact direct sunlight (--direct rays): shadow rays per second on 2 threads, BVH build included
 #: (bench_direct.py, generated lobed trees).
 DIRECT_RAYS_PER_S = 1.2e6
@@ -188,6 +191,10 @@ def plan(path: Path, params: PlanParams) -> Report:
     # --direct rays (the default): in each of smax, spp and lb run alone, once in a bake; every traced leaf
     direct_rays = traced_leaves * auto_samples(traced_leaves)
     total_s["direct"] = direct_rays / DIRECT_RAYS_PER_S
+    if lone:  # and each instance's mean through every placed instance
+        placed_rays = len(scene.instances) * instance_samples(len(scene.instances))
+        direct_rays += placed_rays
+        total_s["direct"] += placed_rays / PLACED_DIRECT_RAYS_PER_S
     report.stats = {
         "resolution": params.resolution, "bases": params.bases, "depth": depth,
         "prototypes": protos, "instances": len(scene.instances), "leaves_total": int(leaves_total),

@@ -149,7 +149,7 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
     pv, at = bake_instance_edits(
         scene, "smax", world,
         exact.result.e_direct if exact else from_prototypes(world, {b.index: b.lighting.e_direct for b in bakes}),
-        from_prototypes(world, {b.index: b.lighting.e_scattered for b in bakes}), forest=forest)
+        from_prototypes(world, {b.index: b.lighting.e_scattered for b in bakes}), forest=forest, exact_direct=exact)
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")

@@ -444,7 +444,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         scene, "spp", world,
         exact.result.e_direct if exact else from_prototypes(world, {i: r.direct for i, r in best_of.items()}),
         gathered.result.e_scattered if gathered else from_prototypes(world, {i: r.scattered for i, r in best_of.items()}),
-        forest=forest)
+        forest=forest, exact_direct=exact)
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")

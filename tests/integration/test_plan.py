@@ -70,7 +70,8 @@ def test_plan_of_a_forest_too_large_to_copy_traces_its_lone_trees(tmp_path):
     tris = sum(len(m.triangles) for m in read_scene(EXAMPLE)[0].prototypes[0].meshes)
     assert st["instances"] == 55 * 55 and st["world_triangles"] == 55 * 55 * tris > WORLD_MAX_TRIANGLES
     assert st["traced"] == "lone trees" and st["traced_triangles"] == tris
-    assert st["direct_rays"] == 1500 * 1024  # the prototype's leaves at --direct-samples auto's most
+    # the prototype's leaves at --direct-samples auto's most, and 4096 rays for each instance's mean
+    assert st["direct_rays"] == 1500 * 1024 + 55 * 55 * 4096
     # the reference traces the placed prototype too (geometry.instanced): its memory is the prototype's ray scene
     # plus per-instance tallies, far below the 3025 copies' (~12 GB)
     assert st["world_memory_bytes"] < st["reference_memory_bytes"] < st["world_memory_bytes"] + 0.1e9
