@@ -278,7 +278,8 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
         "noise_rel_direct": float(res.noise_rel_direct),
         "noise_target": params.noise,
         "leaves": sum(counts[i.prototype] for i in scene.instances),
-        "noise_rel_instance": float(res.noise_rel_instance),
+        # each instance's own tallies: only a forest traced through its placements has them
+        "noise_rel_instance": float(res.noise_rel_instance) if math.isfinite(res.noise_rel_instance) else None,
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(),
         "energy": {
