@@ -150,15 +150,11 @@ class InstancedRayScene:
         end = start[1:]
         width = 1
         while True:
-            open_ = cursor < end
-            idx = np.flatnonzero(open_)
+            idx = np.flatnonzero(cursor < end)
             idx = idx[t_enter[cursor[idx]] < best[idx]]
             if idx.size == 0:
                 break
-            take = np.minimum(end[idx] - cursor[idx], width)
-            rays = np.repeat(idx, take)
-            pos = np.repeat(cursor[idx] - np.cumsum(take) + take, take) + np.arange(int(take.sum()))
-            cursor[idx] += take
+            rays, pos = _next_candidates(idx, cursor, end, width)
             keep = t_enter[pos] < best[rays]
             rays, inst = rays[keep], cand[pos[keep]]
             for p, scene in enumerate(self.scenes):
@@ -193,10 +189,7 @@ class InstancedRayScene:
             idx = np.flatnonzero((cursor < end) & ~out)
             if idx.size == 0:
                 break
-            take = np.minimum(end[idx] - cursor[idx], width)
-            rays = np.repeat(idx, take)
-            pos = np.repeat(cursor[idx] - np.cumsum(take) + take, take) + np.arange(int(take.sum()))
-            cursor[idx] += take
+            rays, pos = _next_candidates(idx, cursor, end, width)
             inst = cand[pos]
             for p, scene in enumerate(self.scenes):
                 sel = np.flatnonzero(self.prototype_of[inst] == p)
@@ -206,6 +199,16 @@ class InstancedRayScene:
                 out[rays[sel][scene.occluded(lo, ld, workers=workers)]] = True
             width *= 2
         return out
+
+
+def _next_candidates(idx: np.ndarray, cursor: np.ndarray, end: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The next ``width`` candidates (at most) of each ray in ``idx``: (ray, position in the CSR) pairs; advances
+    the rays' cursors past them."""
+    take = np.minimum(end[idx] - cursor[idx], width)
+    rays = np.repeat(idx, take)
+    pos = np.repeat(cursor[idx] - np.cumsum(take) + take, take) + np.arange(int(take.sum()))
+    cursor[idx] += take
+    return rays, pos
 
 
 def _instance_boxes(scenes, linear, translation, proto) -> tuple[np.ndarray, np.ndarray]:

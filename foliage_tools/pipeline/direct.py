@@ -39,12 +39,17 @@ DIRECT_MODES = ("rays", "volume")
 AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET = 16, 1024, 1 << 24
 
 
-def auto_samples(leaves: int) -> int:
-    """Samples per leaf for ``--direct-samples auto`` (see :data:`AUTO_RAY_BUDGET`)."""
-    k = AUTO_MAX
-    while k > AUTO_MIN and k * leaves > AUTO_RAY_BUDGET:
+def _within_budget(count: int, low: int, high: int, budget: int) -> int:
+    """The largest power of two from ``high`` down to ``low`` whose ``count`` multiples stay within ``budget``."""
+    k = high
+    while k > low and k * count > budget:
         k //= 2
     return k
+
+
+def auto_samples(leaves: int) -> int:
+    """Samples per leaf for ``--direct-samples auto`` (see :data:`AUTO_RAY_BUDGET`)."""
+    return _within_budget(leaves, AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET)
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,10 +146,7 @@ INSTANCE_MIN, INSTANCE_MAX, INSTANCE_RAY_BUDGET = 256, 4096, 1 << 26
 
 def instance_samples(instances: int) -> int:
     """Shadow rays per instance of :func:`instance_direct` (:data:`INSTANCE_RAY_BUDGET`)."""
-    k = INSTANCE_MAX
-    while k > INSTANCE_MIN and k * instances > INSTANCE_RAY_BUDGET:
-        k //= 2
-    return k
+    return _within_budget(instances, INSTANCE_MIN, INSTANCE_MAX, INSTANCE_RAY_BUDGET)
 
 
 def instance_direct(scene: Scene, sun: Sun, progress: Progress, *, seed: int = 0) -> direct.InstanceDirect:
