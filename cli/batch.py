@@ -18,7 +18,7 @@ from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED, FoliageError, 
 #: The bake options an asset of a manifest may set (every option of `foliage bake` but its output and output format).
 _NOT_PER_ASSET = {"outdir", "as_json", "quiet", "verbose"}
 _BAKE_PARAMS = ("resolution", "with_reference", "reference_paths", "reference_noise", "direct_mode", "direct_samples",
-                "sun", "leaf_optics", "wood_reflectance", "volume_purpose")
+                "sun", "leaf_optics", "wood_reflectance", "volume_purpose", "layer_format")
 
 
 class _Bar:
@@ -194,7 +194,7 @@ def _render(report, dry_run: bool) -> None:
     for col in ("asset", "status", "seconds", "result or error"):
         table.add_column(col, justify="right" if col == "seconds" else "left", overflow="fold")
     for name, e in s["assets"].items():
-        outcome = e["error"]["message"] if e.get("error") else next((o for o in e["outputs"] if o.endswith(".lb.usda")), "")
+        outcome = e["error"]["message"] if e.get("error") else next((o for o in e["outputs"] if o.endswith((".lb.usda", ".lb.usdc"))), "")
         table.add_row(escape(name), e["status"], f"{e['seconds']:.1f}", escape(outcome))
     console.stdout.print(table)
     console.stdout.print(f"wrote {report.outputs[-1]}", highlight=False, soft_wrap=True)

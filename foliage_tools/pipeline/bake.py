@@ -23,7 +23,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from foliage_tools.errors import FoliageError, OutputError
+from foliage_tools.errors import FoliageError, OutputError, UsageError
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.direct import DirectChoice
@@ -49,6 +49,33 @@ class BakeParams:
     """``--volume-purpose`` of the FoliageLighting volumes every stage writes."""
     portable: bool = False
     """Bake a flattened copy of the input written into OUTDIR (``scene.portable``), so the folder can move on its own."""
+    layer_format: str = "auto"
+    """``--layer-format``: the layers' file format, ``usda`` (text), ``usdc`` (binary crate) or ``auto``
+    (:func:`layer_extension`)."""
+
+    def __post_init__(self) -> None:
+        if self.layer_format not in LAYER_FORMATS:
+            raise UsageError(f"--layer-format must be one of {', '.join(LAYER_FORMATS)}, got {self.layer_format!r}.")
+
+
+#: ``--layer-format`` choices.
+LAYER_FORMATS = ("auto", "usda", "usdc")
+#: ``auto`` writes binary ``.usdc`` layers from this many prototype leaves or placed instances on: per-leaf and
+#: per-instance primvars make text layers large and slow (issue #16: a 1M-leaf bake wrote 981 MB of .usda; its SPP
+#: layer is 443 MB as .usda and 112 MB as .usdc), while a small bake stays readable and diffable as text.
+LAYER_USDC_LEAVES, LAYER_USDC_INSTANCES = 100_000, 10_000
+
+
+def layer_extension(path: Path, params: BakeParams) -> str:
+    """The extension of the bake's layers: ``params.layer_format``, or for ``auto`` ``usdc`` when the input has
+    :data:`LAYER_USDC_LEAVES` prototype leaves or :data:`LAYER_USDC_INSTANCES` instances, else ``usda``."""
+    if params.layer_format != "auto":
+        return params.layer_format
+    from foliage_tools.scene.read import read_scene
+
+    scene = read_scene(path)[0]
+    leaves = sum(p.leaves.count for p in scene.prototypes)
+    return "usdc" if leaves >= LAYER_USDC_LEAVES or len(scene.instances) >= LAYER_USDC_INSTANCES else "usda"
 
 
 #: ``--lod`` of the bake's preview of a forest above ``world.WORLD_MAX_TRIANGLES``.
@@ -63,10 +90,10 @@ def _stage(name: str, fn, *args, **kwargs):
         raise
 
 
-def planned_outputs(path: Path, params: BakeParams) -> list[str]:
+def planned_outputs(path: Path, params: BakeParams, layer_ext: str = "usda") -> list[str]:
     """The names a bake writes into OUTDIR (one ``.vdb`` per prototype adds ``NN_name`` names: see density.vdb_path)."""
     stem = Path(path).stem
-    names = [f"{stem}.{s}.{ext}" for s in ("density", "smax", "spp", "lb") for ext in ("usda", "vdb")]
+    names = [f"{stem}.{s}.{ext}" for s in ("density", "smax", "spp", "lb") for ext in (layer_ext, "vdb")]
     names.remove(f"{stem}.smax.vdb")
     names.append(f"{stem}.png")
     if params.portable:
@@ -87,7 +114,8 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     created = _make_dirs(outdir.absolute(), outdir)
     label = f"{Path(path).stem}.bake"
     try:
-        names = planned_outputs(path, params)
+        ext = layer_extension(path, params)
+        names = planned_outputs(path, params, ext)
         _check_outputs(path, outdir, names)
         recover(outdir, [label, *names], report.warnings)
         report.warnings += _legacy_staging(outdir)
@@ -103,13 +131,13 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
             progress.step(f"flattening {path} into the output folder (--portable)")
             copied = write_portable_input(path, commit.staging, report.warnings)
             source = copied[-1]
-        stages = _run_stages(source, commit.staging, params, progress, stem=Path(path).stem)
+        stages = _run_stages(source, commit.staging, params, progress, stem=Path(path).stem, ext=ext)
         moved = _commit(path, outdir, commit, portable_input=source if params.portable else None)
     except BaseException:
         commit.discard()
         _remove_empty(created)
         raise
-    final = moved[f"{Path(path).stem}.lb.usda"]
+    final = moved[f"{Path(path).stem}.lb.{ext}"]
     for r in stages.values():
         r.outputs = [str(moved.get(Path(o).name, o)) for o in r.outputs]
     report.outputs += [str(moved[f.name]) for f in copied]
@@ -126,7 +154,8 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     return report.finish()
 
 
-def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, *, stem: str) -> dict[str, Report]:
+def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, *, stem: str,
+                ext: str = "usda") -> dict[str, Report]:
     """Every stage in order, each layer over the previous one, all written into ``work``; their reports."""
     from foliage_tools.pipeline.density import run_density
     from foliage_tools.pipeline.lb import LBBakeParams, run_lb
@@ -144,13 +173,13 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
 
         _, scene, sun = begin_bake("bake", path, None, params.sun, progress)
         params = replace(params, direct=replace(params.direct, precomputed=bake_direct(scene, sun, params.direct, progress)))
-    density_out = work / f"{stem}.density.usda"
+    density_out = work / f"{stem}.density.{ext}"
     stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution, volume_purpose=params.volume_purpose), progress=progress)
-    smax_out = work / f"{stem}.smax.usda"
+    smax_out = work / f"{stem}.smax.{ext}"
     stages["smax"] = _stage("smax", run_smax, density_out, smax_out, SmaxParams(optics=params.optics, sun=params.sun, direct=params.direct), progress=progress)
-    spp_out = work / f"{stem}.spp.usda"
+    spp_out = work / f"{stem}.spp.{ext}"
     stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose), progress=progress)
-    lb_out = work / f"{stem}.lb.usda"
+    lb_out = work / f"{stem}.lb.{ext}"
     stages["lb"] = _stage(
         "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose), progress=progress
     )

@@ -122,3 +122,26 @@ def test_bake_stages_inside_outdir_and_writes_nothing_beside_it(tmp_path, monkey
     assert sorted(p.name for p in out.iterdir()) == sorted(["notes.txt", *(
         f"tree_small.{n}" for n in ("density.usda", "density.vdb", "smax.usda", "spp.usda", "spp.vdb", "lb.usda", "lb.vdb", "png"))])
     assert foliage("validate", out / "tree_small.lb.usda").returncode == 0
+
+
+def test_layer_format_usdc_writes_binary_layers_that_chain_and_validate(tmp_path, monkeypatch):
+    from pxr import Sdf, UsdGeom
+
+    from foliage_tools.pipeline import bake as bake_module
+    from foliage_tools.scene.read import open_stage
+
+    report = run_bake(EXAMPLE, tmp_path / "out", BakeParams(optics=parse_leaf_optics(None), resolution=8, layer_format="usdc"))
+    final = Path(report.stats["result"])
+    assert final.name == "tree_small.lb.usdc" and final.read_bytes()[:8] == b"PXR-USDC"  # the crate file's magic
+    layer = Sdf.Layer.FindOrOpen(str(final))
+    assert list(layer.subLayerPaths)[0].endswith("tree_small.spp.usdc")
+    stage = open_stage(final)
+    leaves = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Tree/Leaves"))
+    assert leaves.GetPrimvar("foliage:lbIndirect").HasAuthoredValue() and leaves.GetPrimvar("foliage:smax:scattered").HasAuthoredValue()
+    assert foliage("validate", final).returncode == 0
+    # auto: text for the 1500-leaf example, binary from LAYER_USDC_LEAVES prototype leaves on
+    assert bake_module.layer_extension(EXAMPLE, BakeParams(optics=parse_leaf_optics(None))) == "usda"
+    monkeypatch.setattr(bake_module, "LAYER_USDC_LEAVES", 1500)
+    assert bake_module.layer_extension(EXAMPLE, BakeParams(optics=parse_leaf_optics(None))) == "usdc"
+    with pytest.raises(Exception, match="--layer-format must be one of"):
+        BakeParams(optics=parse_leaf_optics(None), layer_format="json")
