@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import sys
+import time
 
 from rich.console import Console
 from rich.markup import escape
@@ -14,13 +15,21 @@ stderr = Console(stderr=True)
 stdout = Console()
 
 
+#: Without a terminal (a pipeline step, CI), a long step's progress is printed as a line at most this often (s).
+PLAIN_EVERY_S = 30.0
+
+
 class RichProgress:
-    """Implements :class:`foliage_tools.pipeline.report.Progress` with a rich bar on stderr."""
+    """Implements :class:`foliage_tools.pipeline.report.Progress`: a rich bar on stderr when it is a terminal, else
+    (a pipeline step, a CI log) plain lines, one per step and one per :data:`PLAIN_EVERY_S` seconds of a long one."""
 
     def __init__(self, enabled: bool) -> None:
         self.enabled = enabled and stderr.is_terminal
+        self.plain = enabled and not stderr.is_terminal
         self._progress: Progress | None = None
         self._task = None
+        self._start = time.monotonic()
+        self._line = None  # plain mode: [message, total, done, time of the last line]
 
     def __enter__(self) -> "RichProgress":
         if self.enabled:
@@ -35,9 +44,17 @@ class RichProgress:
         if self._progress is not None:
             self._progress.__exit__(*exc)
 
+    def _print(self, text: str) -> None:
+        sys.stderr.write(f"[{time.monotonic() - self._start:7.1f} s] {text}\n")
+        sys.stderr.flush()
+
     def step(self, message: str, total: int | None = None) -> None:
+        if self.plain:
+            self._print(message)
+            self._line = [message, total, 0, time.monotonic()]
+            return
         if self._progress is None:
-            # no bar (stderr is not a terminal, or -q): the steps still reach a log (-v) line by line
+            # no bar (-q or --json): the steps still reach a log (-v) line by line
             logging.getLogger("foliage").info(message)
             return
         if self._task is not None:
@@ -45,6 +62,14 @@ class RichProgress:
         self._task = self._progress.add_task(message, total=total)
 
     def advance(self, n: int = 1) -> None:
+        if self.plain and self._line is not None:
+            line = self._line
+            line[2] += n
+            now = time.monotonic()
+            if line[1] and now - line[3] >= PLAIN_EVERY_S:
+                self._print(f"{line[0]}: {100.0 * line[2] / line[1]:.0f} % ({line[2]:,}/{line[1]:,})")
+                line[3] = now
+            return
         if self._progress is not None and self._task is not None:
             self._progress.advance(self._task, n)
 

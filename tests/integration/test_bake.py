@@ -145,3 +145,21 @@ def test_layer_format_usdc_writes_binary_layers_that_chain_and_validate(tmp_path
     assert bake_module.layer_extension(EXAMPLE, BakeParams(optics=parse_leaf_optics(None))) == "usdc"
     with pytest.raises(Exception, match="--layer-format must be one of"):
         BakeParams(optics=parse_leaf_optics(None), layer_format="json")
+
+
+def test_progress_reaches_a_log_without_a_terminal(tmp_path, monkeypatch):
+    # a pipeline step or CI (stderr is a pipe): every step as a plain timed line, and a long step's share done
+    from foliage_tools.cli import console
+
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "a.usda")
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("[")]
+    assert r.returncode == 0 and any("direct sunlight" in ln for ln in lines) and lines[-1].endswith("a.usda")
+    assert not [ln for ln in foliage("smax", EXAMPLE, "-o", tmp_path / "b.usda", "-q").stderr.splitlines() if ln.startswith("[")]
+    monkeypatch.setattr(console, "PLAIN_EVERY_S", 0.0)
+    seen = []
+    monkeypatch.setattr(console.RichProgress, "_print", lambda self, text: seen.append(text))
+    p = console.RichProgress(enabled=True)
+    p.plain, p.enabled = True, False
+    p.step("tracing", total=4)
+    p.advance(2)
+    assert seen == ["tracing", "tracing: 50 % (2/4)"]
