@@ -812,6 +812,10 @@ def _process_hits(
             if a_r + a_t <= 0.0:
                 continue
             mode = 0 if u[i, 0] * (a_r + a_t) < a_r else 1
+            # u (a_r + a_t) rounds up to a_r when they are subnormal (a wood reflectance of 5e-324): never pick
+            # an event of zero weight, whose weight factor would divide by zero
+            if mode == 1 and a_t <= 0.0:
+                mode = 0
             keep = a_r + a_t
         else:
             # analog absorption: the event is the Russian roulette
@@ -822,6 +826,10 @@ def _process_hits(
                 mode = 1
             else:
                 mode = 2
+            if mode == 2 and a_a <= 0.0:  # the same rounding at the top of the range
+                mode = 0 if a_t <= 0.0 else 1
+            elif mode == 1 and a_t <= 0.0:
+                mode = 0
             if mode == 2:
                 f = total / a_a
                 for c in range(3):

@@ -95,6 +95,7 @@ def planned_outputs(path: Path, params: BakeParams, layer_ext: str = "usda") -> 
     stem = Path(path).stem
     names = [f"{stem}.{s}.{ext}" for s in ("density", "smax", "spp", "lb") for ext in (layer_ext, "vdb")]
     names.remove(f"{stem}.smax.vdb")
+    names.append(f"{stem}.lb.forest.vdb")  # a scene of several instances: the forest lattice (pipeline.forest)
     names.append(f"{stem}.png")
     if params.portable:
         from foliage_tools.scene.portable import input_copy_name

@@ -71,6 +71,8 @@ class ForestLight:
     """The stand's coarse world grid."""
     scattered: np.ndarray
     """(nx, ny, nz, 3) scattered scalar irradiance of the stand, per unit sun irradiance."""
+    lad: np.ndarray
+    """(nx, ny, nz) float32 leaf area density of the stand (leaf area per unit volume, stage units⁻¹)."""
     factors: np.ndarray
     """(N, 3) per instance: its scattered light in the stand over the same tree's alone."""
     direct_factors: np.ndarray
@@ -83,6 +85,29 @@ class ForestLight:
                 "factor_min": self.factors.min(axis=0).tolist(), "factor_max": self.factors.max(axis=0).tolist(),
                 "direct_factor_min": self.direct_factors.min(axis=0).tolist(),
                 "direct_factor_max": self.direct_factors.max(axis=0).tolist()}
+
+
+def forest_volume(scene: Scene, forest: ForestLight, vdb_file, purpose: str, method: str):
+    """The stand's lattice as a ``UsdVol.Volume`` in world space under the default prim (``FoliageForest``):
+    ``forestDensity`` (leaf area density) and ``forestScattered`` (scattered scalar irradiance per unit sun
+    irradiance, RGB). When the default prim is transformed, the volume carries the inverse, so its grids stay in
+    world coordinates."""
+    from foliage_tools import __version__
+    from foliage_tools.scene.vdb import Grid
+    from foliage_tools.scene.write import VolumeEdit
+
+    g = forest.grid
+    meta = {"foliage:method": method, "foliage:forest": True}
+    grids = (Grid("forestDensity", forest.lad, tuple(g.origin), g.voxel_size, meta),
+             Grid("forestScattered", forest.scattered.astype(np.float32), tuple(g.origin), g.voxel_size, meta))
+    root = scene.default_prim or ""
+    world_from_root = np.asarray(scene.default_prim_transform, dtype=np.float64)
+    transform = None if np.allclose(world_from_root, np.eye(4)) else np.linalg.inv(world_from_root)
+    attrs = {"foliage:method": method, "foliage:voxelSize": float(g.voxel_size),
+             "foliage:resolution": tuple(int(n) for n in g.shape), "foliage:metersPerUnit": float(scene.meters_per_unit),
+             "foliage:seconds": float(forest.seconds), "foliage:version": __version__}
+    return VolumeEdit(path=f"{root}/FoliageForest", vdb_file=vdb_file, grids=grids, attributes=attrs, purpose=purpose,
+                      transform=transform)
 
 
 def _grid_over(points: np.ndarray, voxel: float) -> GridSpec:
@@ -176,7 +201,7 @@ def _forest_light(scene: Scene, sun: Sun, optics: LeafOptics, tolerance: float) 
         leaves = scene.prototypes[i].leaves
         placed.deposit(grid, placements[i], leaves.centers, leaves.areas, out=lad)
     stand, stand_beam = _solve(lad, grid, sun.direction, optics, tolerance)
-    del lad
+    lad = lad.astype(np.float32)
     both = np.concatenate([stand, stand_beam], axis=-1)  # one pass over the placed leaves for the two fields
     n = len(scene.instances)
     factors, direct_factors = np.ones((n, stand.shape[-1])), np.ones((n, stand.shape[-1]))
@@ -191,4 +216,4 @@ def _forest_light(scene: Scene, sun: Sun, optics: LeafOptics, tolerance: float) 
         ratio = np.divide(in_stand, alone, out=np.ones_like(in_stand), where=alone > 0)
         c = stand.shape[-1]
         factors[ks], direct_factors[ks] = ratio[:, :c], ratio[:, c:]
-    return ForestLight(grid, stand, factors, direct_factors, time.perf_counter() - t0)
+    return ForestLight(grid, stand, lad, factors, direct_factors, time.perf_counter() - t0)

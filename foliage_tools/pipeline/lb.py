@@ -344,6 +344,11 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
     forest = forest_light(scene, sun, params.optics, progress=progress) if gathered is None or world.lone else None
     pv, at = bake_instance_edits(scene, "lb", world, direct_all, scattered_all, forest=forest,
                                  exact_direct=exact)
+    if forest is not None:  # steele2010 sec. 3.2's coarse global lattice, where a renderer can read it
+        from foliage_tools.pipeline.forest import forest_volume
+
+        edits.volumes.append(forest_volume(scene, forest, out.with_name(f"{out.stem}.forest.vdb"),
+                                           params.volume_purpose, "lb"))
     edits.primvars += pv
     edits.attributes += at
     progress.step(f"writing {out}")

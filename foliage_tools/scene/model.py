@@ -137,6 +137,8 @@ class Scene:
     instances: tuple[Instance, ...]
     lights: tuple[Light, ...] = field(default_factory=tuple)
     default_prim: str | None = None
+    default_prim_transform: np.ndarray = field(default_factory=lambda: np.eye(4))
+    """(4, 4) world-from-default-prim matrix (column-vector convention); identity without a default prim."""
     instancer_sizes: dict = field(default_factory=dict)
     """Point instancer path -> its number of instances (len(protoIndices), masked ones included): the length
     of a per-instance primvar on it."""

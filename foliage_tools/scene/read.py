@@ -224,6 +224,7 @@ class _Reader:
             instances=tuple(self.instances),
             lights=tuple(self.lights),
             default_prim=str(dp.GetPath()) if dp else None,
+            default_prim_transform=_matrix(self.xf.GetLocalToWorldTransform(dp)) if dp else np.eye(4),
             instancer_sizes=dict(self.instancer_sizes),
         )
 

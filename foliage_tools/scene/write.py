@@ -26,7 +26,7 @@ from foliage_tools.scene.vdb import Grid, write_vdb
 
 register()
 
-from pxr import Sdf, Usd, UsdGeom, UsdVol, Vt  # noqa: E402
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdVol, Vt  # noqa: E402
 
 USD_EXTENSIONS = (".usda", ".usdc", ".usd")
 #: ``--volume-purpose`` of the stages that write grids: ``default`` loads in DCCs (issue #17); ``guide`` keeps the
@@ -63,6 +63,8 @@ class VolumeEdit:
     """``foliage:*`` attribute values of FoliageLightingAPI."""
     purpose: str = "default"
     """The volume's purpose (``--volume-purpose``): ``default`` (DCCs import it and renderers draw it) or ``guide``."""
+    transform: np.ndarray | None = None
+    """(4, 4) parent-from-volume matrix (column-vector convention) authored as the volume's xform; None: none."""
 
     def __post_init__(self) -> None:
         if self.purpose not in VOLUME_PURPOSES:
@@ -288,6 +290,8 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path, carried: dict[str, l
         # purpose default unless --volume-purpose guide (issue #17): DCCs import and renderers draw only
         # default/render purpose by default (Blender 5.0 skipped the volume when it was a guide)
         volume.CreatePurposeAttr(UsdGeom.Tokens.default_ if vol.purpose == "default" else UsdGeom.Tokens.guide)
+        if vol.transform is not None:  # Gf matrices are row-vector: the transpose of ours
+            volume.AddTransformOp().Set(Gf.Matrix4d(np.asarray(vol.transform, dtype=np.float64).T.tolist()))
         lo = np.min([np.asarray(g.origin) for g in vol.grids], axis=0)
         hi = np.max([np.asarray(g.origin) + np.asarray(g.values.shape[:3]) * g.voxel_size for g in vol.grids], axis=0)
         volume.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))

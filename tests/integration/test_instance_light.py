@@ -6,6 +6,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
@@ -70,3 +71,38 @@ def test_instance_means_land_on_the_instancer_and_the_native_instances(tmp_path)
     ratio = grove_s[visible] / scale[visible]  # the prototype's mean scattered light: the same for every instance
     np.testing.assert_allclose(ratio, np.broadcast_to(ratio[0], ratio.shape), rtol=1e-5)
     assert foliage("validate", tmp_path / "f.smax.usda").returncode == 0
+
+
+def test_the_forest_lattice_is_a_world_space_volume_under_the_default_prim(tmp_path):
+    # steele2010 3.2's coarse global lattice, where a renderer reads it: its density holds every instance's leaf
+    # area (the deposit conserves it), and its grids are in world coordinates even under a transformed default prim
+    from pxr import Gf, Usd, UsdGeom, UsdVol
+
+    from foliage_tools.pipeline.lb import LBBakeParams, run_lb
+    from foliage_tools.scene.read import read_scene
+    from foliage_tools.scene.vdb import read_grid
+
+    for name in ("forest_small.usda", "tree_small.usda"):
+        shutil.copy(EXAMPLES / name, tmp_path / name)
+    stage = Usd.Stage.Open(str(tmp_path / "forest_small.usda"))
+    UsdGeom.Xformable(stage.GetPrimAtPath("/World")).AddTranslateOp().Set(Gf.Vec3d(5.0, -2.0, 0.0))
+    stage.GetRootLayer().Save()
+    forest = tmp_path / "forest_small.usda"
+    run_lb(forest, tmp_path / "f.lb.usda", LBBakeParams(optics=parse_leaf_optics(None), resolution=16, direct=DIRECT))
+    layer = open_stage(tmp_path / "f.lb.usda")
+    vol = UsdVol.Volume(layer.GetPrimAtPath("/World/FoliageForest"))
+    assert vol and set(vol.GetFieldPaths()) == {"forestDensity", "forestScattered"}
+    world = np.array(UsdGeom.Xformable(vol.GetPrim()).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+    np.testing.assert_allclose(world, np.eye(4), atol=1e-12)  # the volume's own frame is the world's
+    density = read_grid(tmp_path / "f.lb.forest.vdb", "forestDensity")
+    scene, _ = read_scene(forest)
+    area = sum(scene.prototypes[i.prototype].leaves.areas.sum() * abs(np.linalg.det(i.transform[:3, :3])) ** (2 / 3)
+               for i in scene.instances)
+    assert np.sum(density.values, dtype=np.float64) * density.voxel_size**3 == pytest.approx(area, rel=1e-5)
+    # the grid covers the instances where they stand, translated with /World
+    centres = np.array([i.transform[:3, 3] for i in scene.instances])
+    lo = np.asarray(density.origin)
+    hi = lo + np.asarray(density.values.shape) * density.voxel_size
+    assert np.all(centres[:, :2] > lo[:2]) and np.all(centres[:, :2] < hi[:2])
+    scattered = read_grid(tmp_path / "f.lb.forest.vdb", "forestScattered").values
+    assert np.all(np.isfinite(scattered)) and scattered.max() > 0
