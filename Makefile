@@ -43,8 +43,8 @@ test-slow: setup
 	$(PY) -m pytest -m slow -q
 
 # Speed studies (not tests): each script prints its own table. Run one with
-# `make bench BENCH=density` (density, lb, lb_issue, smax, reference, reference_noise, direct, preview, spp_tables, sppg, forest, batch).
-BENCH ?= density lb lb_issue smax reference reference_noise direct preview spp_tables sppg forest batch
+# `make bench BENCH=density` (density, lb, lb_issue, lb_storage, smax, reference, reference_noise, direct, preview, spp_tables, sppg, forest, batch).
+BENCH ?= density lb lb_issue lb_storage smax reference reference_noise direct preview spp_tables sppg forest batch
 bench: setup
 	@for b in $(BENCH); do \
 	  if [ -f benchmarks/bench_$$b.py ]; then echo "== benchmarks/bench_$$b.py"; $(PY) benchmarks/bench_$$b.py || exit 1; fi; \

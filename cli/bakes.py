@@ -231,13 +231,17 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, nois
 @click.option("--max-sweeps", type=click.IntRange(min=1), default=20000, show_default=True,
               help="Stop after this many lattice sweeps. Short of --tolerance the layer is still written, and the "
                    "command exits 1 (a bake that failed its accuracy check).")
+@click.option("--storage", type=click.Choice(["fp32", "fp16"]), default="fp32", show_default=True,
+              help="How the solver stores the lattice densities between sweeps: fp32, or fp16 (binary16 with float32 "
+                   "arithmetic: half the memory, ~1.5x faster with --bases all; not with --solver bicgstab). The grids "
+                   "written are float32 either way; README 'LB storage' gives the measured error.")
 @gather_option("LB's scattered light", "primvars:foliage:lb:scattered and lbIndirect (then per leaf)")
 @volume_purpose_option
 @direct_options
 @bake_options
 @common_options
 def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, solver: str, absorption_scale: float, max_sweeps: int,
-       gather: int, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+       storage: str, gather: int, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
        as_json: bool, quiet: bool, verbose: int) -> None:
     """Lattice-Boltzmann light bake (geist2008, steele2010) per unique prototype.
 
@@ -265,7 +269,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, bases=bases, tolerance=tolerance, solver=solver, absorption_scale=absorption_scale,
-            max_sweeps=max_sweeps, direct=direct_choice(direct_mode, direct_samples), gather=gather,
+            max_sweeps=max_sweeps, storage=storage, direct=direct_choice(direct_mode, direct_samples), gather=gather,
             volume_purpose=volume_purpose,
         )
 

@@ -189,13 +189,15 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
               help="Grid nodes along the longest edge of each tree's foliage bounds (as for lb/spp).")
 @click.option("--bases", type=click.Choice(["sun", "all"]), default="sun", show_default=True,
               help="LB boundary conditions to plan for: the scene's sun, or all 18 relighting bases (x RGB).")
+@click.option("--storage", type=click.Choice(["fp32", "fp16"]), default="fp32", show_default=True,
+              help="LB density storage to plan for, as `foliage lb --storage` (fp16 halves the solver's two fields).")
 @click.option("--depth", type=click.Choice(["auto", "rays", "grid"]), default="auto", show_default=True,
               help="SPP depth path to plan for, as `foliage spp --depth` (rays cost grows with leaves x --rays-per-leaf x directions).")
 @click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True)
 @click.option("--reference-paths", type=click.IntRange(min=1), default=1_000_000, show_default=True,
               help="Monte Carlo sun paths to plan for.")
 @common_options
-def plan(scene: Path, resolution: int, bases: str, depth: str, rays_per_leaf: int, reference_paths: int,
+def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, rays_per_leaf: int, reference_paths: int,
          as_json: bool, quiet: bool, verbose: int) -> None:
     """Show what a bake of SCENE would do: grids, work, estimated seconds and memory. Writes nothing.
 
@@ -215,7 +217,7 @@ def plan(scene: Path, resolution: int, bases: str, depth: str, rays_per_leaf: in
 
     def body() -> int:
         setup_logging(verbose, quiet)
-        params = PlanParams(resolution=resolution, bases=bases, depth=depth, rays_per_leaf=rays_per_leaf,
+        params = PlanParams(resolution=resolution, bases=bases, storage=storage, depth=depth, rays_per_leaf=rays_per_leaf,
                             reference_paths=reference_paths)
 
         def render(report) -> None:

@@ -116,6 +116,20 @@ best such kernel ran at 38 / 50 node x rhs MLUPS for R = 3 / 57 against 61 /
 101 for rows of nz K values. Memory: 72 C K bytes per node and field (64^3
 with 19 bases x RGB: 1.08 GB); plain iteration holds 2 fields, BiCGSTAB 6.
 
+Storage (``LBParams.storage``, ``lighting.storage``): the state is float32
+(``fp32``) or binary16 bits in uint16 (``fp16``: 36 C K bytes per node and
+field). The kernels read every stored density through ``storage.load`` and
+write through ``storage.convert`` (identities for float32, so the fp32 path
+is the same code as before), and do all arithmetic in float32, the dtype of
+``rho``, which also types their scratch arrays: FluidX3D's FP16 storage with
+FP32 arithmetic. Each stored value is rounded once per sweep, except in the
+hand loop of short occupied runs with a beam source, which rounds after the
+collision and again after the source. Pass-through copies move the 16-bit
+values unchanged. The residual is that of the stored (rounded) values, so an
+fp16 iteration ends at a fixed point of the rounded map, whose distance from
+the exact steady state is bounded by 2^-11 (I - T)^-1 |f| componentwise
+(tests/unit/test_lb_storage.py). BiCGSTAB is not offered with fp16.
+
 Occupied nodes collide by the parity split of ``_parity_blocks``: two (9 x 9)
 @ (9 x n) products per channel and material on rho (f_2p +- f_2p+1), written
 out three output rows per pass (``_pair_product``: their coefficients stay in
@@ -200,6 +214,7 @@ from foliage_tools.lighting.collision import (
 )
 from foliage_tools.lighting.depth import _march
 from foliage_tools.lighting.lattice import DIRECTIONS, OPPOSITE, STEP_LENGTHS, UNIT_DIRECTIONS, barycentric_weights
+from foliage_tools.lighting.storage import STORAGES, convert, from_storage, load, storage_dtype, to_storage
 
 __all__ = [
     "Boundary",
@@ -494,7 +509,12 @@ class LBParams:
     check_every: int = 4
     """Plain iteration measures the residual every this many sweeps (a measuring sweep costs ~1.5x a plain one)."""
     dtype: str = "float32"
-    """Storage of the field: ``float32`` (default) or ``float64``."""
+    """Arithmetic (and, with ``storage="fp32"``, storage) of the field: ``float32`` (default) or ``float64``."""
+    storage: str = "fp32"
+    """What the 18 densities are stored in between sweeps (``lighting.storage``): ``fp32`` (the field in ``dtype``)
+    or ``fp16`` (scaled binary16, half the memory and traffic; arithmetic stays float32, one rounding per stored
+    value and sweep). With fp16 ``auto`` never switches to BiCGSTAB (its Krylov vectors would be rounded to 11
+    bits), it extrapolates instead."""
     initial: str = "unscattered"
     """Start from ``unscattered`` light (exact, one pass per direction: the iteration then only has to
     converge the scattered part, and skips the sweeps the direct beam needs to cross the grid) or ``zero``
@@ -513,6 +533,13 @@ class LBParams:
             raise ValueError(f"initial must be 'unscattered' or 'zero', got {self.initial!r}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be float32 or float64, got {self.dtype!r}")
+        if self.storage not in STORAGES:
+            raise ValueError(f"storage must be one of {', '.join(STORAGES)}, got {self.storage!r}")
+        if self.storage == "fp16" and self.dtype != "float32":
+            raise ValueError(f"storage='fp16' computes in float32; it cannot be combined with dtype={self.dtype!r}")
+        if self.storage == "fp16" and self.solver == "bicgstab":
+            raise ValueError("storage='fp16' cannot be combined with solver='bicgstab': BiCGSTAB's Krylov vectors "
+                             "and scalars need more than 11 bits; use solver='auto', 'iterate' or 'extrapolate'")
         if not (self.memory_limit > 0):
             raise ValueError(f"memory_limit must be > 0 bytes, got {self.memory_limit}")
         if self.check_every < 1:
@@ -612,7 +639,8 @@ def _add_squares(F, q):  # pragma: no cover - compiled
             fi = F[i, c]
             qc = q[c]
             for l in range(fi.size):
-                qc[l] += fi[l] * fi[l]
+                v = load(fi[l])
+                qc[l] += v * v
 
 
 @njit(fastmath=True, cache=True)
@@ -650,8 +678,10 @@ def _collide_pairs(F, c, l0, n, rexp, r0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, e
             dp = Db[p]
             for l in range(n):
                 r = re[l]
-                sp[l] = r * (fa[l] + fb[l])
-                dp[l] = r * (fa[l] - fb[l])
+                va = load(fa[l])
+                vb = load(fb[l])
+                sp[l] = r * (va + vb)
+                dp[l] = r * (va - vb)
         if first:
             _pair_product(ae, Sb, Eb)
             _pair_product(ao, Db, Ob)
@@ -721,17 +751,18 @@ def _sweep_rows(f, out, rho, rhod, mat, A, AE, AO, mode, wt, part1, part2, pw, c
     out5 = out.reshape((nx, ny, nq, C, L))
     wt5 = wt.reshape((nx, ny, nq, C, L))
     for x in prange(nx):
+        # arithmetic in rho's dtype (float32 for both storages, ``lighting.storage``); H holds stored values
         H = np.empty((nq, C, L), dtype=f.dtype)
-        buf = np.empty(nq * L, dtype=f.dtype)
-        prod = np.empty(nq * L, dtype=f.dtype)
-        extra = np.empty(nq * L, dtype=f.dtype)
-        acc = np.empty((3, L), dtype=f.dtype)
-        rexp = np.empty((nmat, 2, L), dtype=f.dtype)
-        pexp = np.zeros((nmat, C, L if add_src and nmat > 1 else 1), dtype=f.dtype)
+        buf = np.empty(nq * L, dtype=rho.dtype)
+        prod = np.empty(nq * L, dtype=rho.dtype)
+        extra = np.empty(nq * L, dtype=rho.dtype)
+        acc = np.empty((3, L), dtype=rho.dtype)
+        rexp = np.empty((nmat, 2, L), dtype=rho.dtype)
+        pexp = np.zeros((nmat, C, L if add_src and nmat > 1 else 1), dtype=rho.dtype)
         has = np.zeros(nmat, dtype=np.bool_)
-        ae = np.empty((NH, NH), dtype=f.dtype)  # thread-local copies of AE[m, c], AO[m, c]
-        ao = np.empty((NH, NH), dtype=f.dtype)
-        sgn = np.empty(2, dtype=f.dtype)  # +1 / -1 in the field's dtype (a float64 sign would promote)
+        ae = np.empty((NH, NH), dtype=rho.dtype)  # thread-local copies of AE[m, c], AO[m, c]
+        ao = np.empty((NH, NH), dtype=rho.dtype)
+        sgn = np.empty(2, dtype=rho.dtype)  # +1 / -1 in the field's dtype (a float64 sign would promote)
         sgn[0] = 1.0
         sgn[1] = -1.0
         for y in range(ny):
@@ -820,7 +851,7 @@ def _sweep_rows(f, out, rho, rhod, mat, A, AE, AO, mode, wt, part1, part2, pw, c
                                     ee = ep[a - l0 : b1 - l0]
                                     od = op[a - l0 : b1 - l0]
                                     for l in range(b1 - a):
-                                        oo[l] = ss[l] + ee[l] + sg * od[l]
+                                        oo[l] = convert(load(ss[l]) + ee[l] + sg * od[l], oo)
                                 a = max(lo, l0 + n)
                                 b1 = hi
                                 if b1 > a:
@@ -869,7 +900,7 @@ def _sweep_rows(f, out, rho, rhod, mat, A, AE, AO, mode, wt, part1, part2, pw, c
                                 fj = F[j, c, l0 : l0 + n]
                                 sj = sc[j]
                                 for l in range(n):
-                                    sj[l] = rj[l] * fj[l]
+                                    sj[l] = rj[l] * load(fj[l])
                             for i in range(0, nq, 3):
                                 for l in range(n):
                                     a0[l] = 0.0
@@ -890,16 +921,16 @@ def _sweep_rows(f, out, rho, rhod, mat, A, AE, AO, mode, wt, part1, part2, pw, c
                                 h2 = H[i + 2, c, l0 : l0 + n]
                                 # geist2008 eq. (2): f + sum_j A_ij rho_j f_j, f_0 removed (sec. 3)
                                 for l in range(n):
-                                    h0[l] += a0[l]
-                                    h1[l] += a1[l]
-                                    h2[l] += a2[l]
+                                    h0[l] = convert(load(h0[l]) + a0[l], h0)
+                                    h1[l] = convert(load(h1[l]) + a1[l], h1)
+                                    h2[l] = convert(load(h2[l]) + a2[l], h2)
                             if add_src:
                                 pm = pexp[m, c, l0 : l0 + n] if nmat > 1 else pw[x, y, c, l0 : l0 + n]
                                 for i in range(nq):
                                     h = H[i, c, l0 : l0 + n]
                                     ci = ct[m, c, i, l0 : l0 + n]
                                     for l in range(n):
-                                        h[l] += ci[l] * pm[l]
+                                        h[l] = convert(load(h[l]) + ci[l] * pm[l], h)
                 src = H
             else:
                 src = F  # empty row: pass-through
@@ -925,7 +956,7 @@ def _sweep_rows(f, out, rho, rhod, mat, A, AE, AO, mode, wt, part1, part2, pw, c
                         rn = part1[x, c, lo + d : hi + d]
                         for l in range(n2):
                             v = s[l]
-                            dd = v - fo[l]
+                            dd = load(v) - load(fo[l])
                             rn[l] += dd * dd
                             o[l] = v
                 elif mode == 2:
@@ -939,9 +970,9 @@ def _sweep_rows(f, out, rho, rhod, mat, A, AE, AO, mode, wt, part1, part2, pw, c
                         q1 = part1[x, c, lo + d : hi + d]
                         q2 = part2[x, c, lo + d : hi + d]
                         for l in range(n2):
-                            w = fo[l] - s[l]
-                            o[l] = w
-                            q1[l] += wo[l] * w
+                            w = load(fo[l]) - load(s[l])
+                            o[l] = convert(w, o)
+                            q1[l] += load(wo[l]) * w
                             q2[l] += w * w
                 else:
                     for c in range(C):
@@ -963,36 +994,37 @@ def _stream_piece(mode, acc, o, s, e, od, sg, fo, wo, q1, q2):  # pragma: no cov
         elif mode == 1:
             for l in range(n):
                 v = s[l]
-                dd = v - fo[l]
+                dd = load(v) - load(fo[l])
                 q1[l] += dd * dd
                 o[l] = v
         elif not acc:
             for l in range(n):
-                o[l] = fo[l] - s[l]
+                o[l] = convert(load(fo[l]) - load(s[l]), o)
         else:
             for l in range(n):
-                w = fo[l] - s[l]
-                o[l] = w
-                q1[l] += wo[l] * w
+                w = load(fo[l]) - load(s[l])
+                o[l] = convert(w, o)
+                q1[l] += load(wo[l]) * w
                 q2[l] += w * w
     else:
+        # the residual sums (mode 1) take the value as stored: with fp16 storage the rounded one
         if mode == 0 or (mode == 1 and not acc):
             for l in range(n):
-                o[l] = s[l] + e[l] + sg * od[l]
+                o[l] = convert(load(s[l]) + e[l] + sg * od[l], o)
         elif mode == 1:
             for l in range(n):
-                v = s[l] + e[l] + sg * od[l]
-                dd = v - fo[l]
+                v = convert(load(s[l]) + e[l] + sg * od[l], o)
+                dd = load(v) - load(fo[l])
                 q1[l] += dd * dd
                 o[l] = v
         elif not acc:
             for l in range(n):
-                o[l] = fo[l] - (s[l] + e[l] + sg * od[l])
+                o[l] = convert(load(fo[l]) - (load(s[l]) + e[l] + sg * od[l]), o)
         else:
             for l in range(n):
-                w = fo[l] - (s[l] + e[l] + sg * od[l])
-                o[l] = w
-                q1[l] += wo[l] * w
+                w = load(fo[l]) - (load(s[l]) + e[l] + sg * od[l])
+                o[l] = convert(w, o)
+                q1[l] += load(wo[l]) * w
                 q2[l] += w * w
 
 
@@ -1054,7 +1086,7 @@ def _stream_segment(mode, o, s, fo, wo, q1, q2, a, b, d, limit, wrap_z, B, Lr, e
         ff = fo[a + d : b + d]
         r1 = q1[a + d : b + d]
         for l in range(b - a):
-            dd = oo[l] - ff[l]
+            dd = load(oo[l]) - load(ff[l])
             r1[l] += dd * dd
     elif mode == 2:
         oo = o[a + d : b + d]
@@ -1062,8 +1094,8 @@ def _stream_segment(mode, o, s, fo, wo, q1, q2, a, b, d, limit, wrap_z, B, Lr, e
         r1 = q1[a + d : b + d]
         r2 = q2[a + d : b + d]
         for l in range(b - a):
-            w = oo[l]
-            r1[l] += ww[l] * w
+            w = load(oo[l])
+            r1[l] += load(ww[l]) * w
             r2[l] += w * w
 
 
@@ -1095,17 +1127,18 @@ def _sweep_blocks(f, out, rho, rhod, mat, AE, AO, mode, wt, part1, part2, pw, cE
     out5 = out.reshape((nx, nb, nq, C, R))
     wt5 = wt.reshape((nx, nb, nq, C, R))
     for x in prange(nx):
-        buf = np.empty(2 * NH * R, dtype=f.dtype)
-        prod = np.empty(2 * NH * R, dtype=f.dtype)
-        extra = np.empty(2 * NH * R, dtype=f.dtype)
-        rexp = np.empty((nmat, 2, R), dtype=f.dtype)
-        pexp = np.zeros((nmat, C, R if add_src and nmat > 1 else 1), dtype=f.dtype)
+        # arithmetic in rho's dtype (float32 for both storages, ``lighting.storage``); ``save`` holds stored values
+        buf = np.empty(2 * NH * R, dtype=rho.dtype)
+        prod = np.empty(2 * NH * R, dtype=rho.dtype)
+        extra = np.empty(2 * NH * R, dtype=rho.dtype)
+        rexp = np.empty((nmat, 2, R), dtype=rho.dtype)
+        pexp = np.zeros((nmat, C, R if add_src and nmat > 1 else 1), dtype=rho.dtype)
         has = np.zeros(nmat, dtype=np.bool_)
         save = np.empty(G * B, dtype=f.dtype)
         slots = np.empty(G, dtype=np.int64)
-        ae = np.empty((NH, NH), dtype=f.dtype)  # thread-local copies of AE[m, c], AO[m, c]
-        ao = np.empty((NH, NH), dtype=f.dtype)
-        sgn = np.empty(2, dtype=f.dtype)  # +1 / -1 in the field's dtype (a float64 sign would promote)
+        ae = np.empty((NH, NH), dtype=rho.dtype)  # thread-local copies of AE[m, c], AO[m, c]
+        ao = np.empty((NH, NH), dtype=rho.dtype)
+        sgn = np.empty(2, dtype=rho.dtype)  # +1 / -1 in the field's dtype (a float64 sign would promote)
         sgn[0] = 1.0
         sgn[1] = -1.0
         for blk in range(nb):
@@ -1233,7 +1266,7 @@ def _balance(f, rho, rhod, mat, A, sig_a, inflow_mask, wq, pw, cq, use_src):  # 
                         tot = 0.0
                         for j in range(nq):
                             pj = p if j < 2 * NAXIAL_PAIRS else pd
-                            tot += pj * wq[j] * f[x, yb, j, c, zb, b]
+                            tot += pj * wq[j] * load(f[x, yb, j, c, zb, b])
                         absorbed[x, c, b] += sig_a[m, c] * tot  # moved into f_0 (geist2008 eq. 5), then removed
                         pnode = float(pw[x, yb, c, zb * B + b]) if use_src else 0.0
                         if use_src:
@@ -1243,18 +1276,18 @@ def _balance(f, rho, rhod, mat, A, sig_a, inflow_mask, wq, pw, cq, use_src):  # 
                             continue
                         for i in range(nq):
                             if inflow_mask[x, y, z, i]:
-                                inflow[x, c, b] += wq[i] * f[x, yb, i, c, zb, b]
+                                inflow[x, c, b] += wq[i] * load(f[x, yb, i, c, zb, b])
                             tx = x + _CX[i]
                             ty = y + _CY[i]
                             tz = z + _CZ[i]
                             if 0 <= tx < nx and 0 <= ty < ny and 0 <= tz < nz:
                                 continue
-                            h = float(f[x, yb, i, c, zb, b])
+                            h = float(load(f[x, yb, i, c, zb, b]))
                             if p > 0:
                                 s = 0.0
                                 for j in range(nq):
                                     pj = p if j < 2 * NAXIAL_PAIRS else pd
-                                    s += A[m, c, i, j] * pj * f[x, yb, j, c, zb, b]
+                                    s += A[m, c, i, j] * pj * load(f[x, yb, j, c, zb, b])
                                 h += s
                             if use_src:
                                 h += cq[m, c, i, b] * pnode
@@ -1290,8 +1323,8 @@ def _once_scattered(f, att_a, att_d, power, cq, mat, ks, G):  # pragma: no cover
                         m = mat[ux, uy, uz]
                         for c in range(C):
                             for k in ks:
-                                v = f[ux, uy // G, q, c, (uy % G) * nz + uz, k] * att[ux, uy, uz, c]
-                                f[x, y // G, q, c, (y % G) * nz + z, k] = v + cq[m, c, q, k] * power[ux, uy, uz, k, c]
+                                v = load(f[ux, uy // G, q, c, (uy % G) * nz + uz, k]) * att[ux, uy, uz, c]
+                                f[x, y // G, q, c, (y % G) * nz + z, k] = convert(v + cq[m, c, q, k] * power[ux, uy, uz, k, c], f)
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -1372,7 +1405,8 @@ def _extrapolate(f, prev, factor):  # pragma: no cover - compiled
                 ff = f[x, k, c]
                 pp = prev[x, k, c]
                 for l in range(L):
-                    ff[l] += fa[l] * (ff[l] - pp[l])
+                    v = load(ff[l])
+                    ff[l] = convert(v + fa[l] * (v - load(pp[l])), ff)
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -1408,8 +1442,9 @@ class _Operator:
     row, with few the kernel's loops still run over about ``_BLOCK_VALUES`` values.
     """
 
-    def __init__(self, problem: LBProblem, dtype: str) -> None:
-        self.dtype = np.dtype(dtype)
+    def __init__(self, problem: LBProblem, dtype: str, storage: str = "fp32") -> None:
+        self.dtype = np.dtype(dtype)  # arithmetic (and every array but the state)
+        self.storage = storage_dtype(storage, dtype)  # the state: ``lighting.storage``
         nx, ny, nz = problem.shape
         self.nx, self.ny, self.nz = nx, ny, nz
         self.C = problem.channels
@@ -1472,10 +1507,10 @@ class _Operator:
 
     @property
     def field_bytes(self) -> int:
-        return int(np.prod(self.state_shape)) * self.dtype.itemsize
+        return int(np.prod(self.state_shape)) * self.storage.itemsize
 
     def zeros(self) -> np.ndarray:
-        return np.zeros(self.state_shape, self.dtype)
+        return np.zeros(self.state_shape, self.storage)  # 0 is all-zero bits in binary16 too
 
     def _nodes(self, f: np.ndarray) -> np.ndarray:
         """View (nx, NB, G, 18, C, nz, K) of a state: axes 1 and 2 are y // G and y % G."""
@@ -1497,7 +1532,7 @@ class _Operator:
         mask = self._padded(self.inflow_mask)  # (nx, NB, G, nz, 18)
         for q in range(NQ):
             view = np.moveaxis(nodes[:, :, :, q], 3, 4)  # (nx, NB, G, nz, C, K), a view of f
-            view[mask[..., q]] = 0.0 if zero else self.bnd[q]
+            view[mask[..., q]] = 0.0 if zero else to_storage(self.bnd[q], self.storage)
 
     def initial(self) -> np.ndarray:
         f = self.zeros()
@@ -1513,7 +1548,8 @@ class _Operator:
         nodes = self._nodes(f)
         for q, t in _transmittances(problem, self.bnd.any(axis=1), self.dtype):
             # t (nx, ny, nz, C) -> (nx, NB, G, C, nz, K)
-            nodes[:, :, :, q] = self._padded(t).transpose(0, 1, 2, 4, 3)[..., None] * self.bnd[q].astype(self.dtype)
+            nodes[:, :, :, q] = to_storage(self._padded(t).transpose(0, 1, 2, 4, 3)[..., None] * self.bnd[q].astype(self.dtype),
+                                           self.storage)
         if self.beams is not None:
             att_a, att_d = _attenuations(problem, np.float64)
             _once_scattered(f, att_a, att_d, self.beams.power, self.cq, self.mat, np.nonzero(self.beam_rhs)[0], self.G)
@@ -1527,18 +1563,24 @@ class _Operator:
     def to_row(self, f19: np.ndarray) -> np.ndarray:
         """(nx, ny, nz, 19, K, C) -> the kernel layout (f_0 dropped)."""
         f = self.zeros()
-        self._nodes(f)[...] = self._padded(np.asarray(f19)[..., 1:, :, :].transpose(0, 1, 3, 5, 2, 4))
+        self._nodes(f)[...] = to_storage(self._padded(np.asarray(f19)[..., 1:, :, :].transpose(0, 1, 3, 5, 2, 4)), self.storage)
         return f
 
     def from_row(self, f: np.ndarray) -> np.ndarray:
         """The kernel layout -> (nx, ny, nz, 19, K, C) with f_0 = 0."""
-        full = np.zeros((self.nx, self.ny, self.nz, 19, self.K, self.C), f.dtype)
-        full[..., 1:, :, :] = self._rows(self._nodes(f)).transpose(0, 1, 4, 2, 5, 3)
+        full = np.zeros((self.nx, self.ny, self.nz, 19, self.K, self.C), self.dtype)
+        full[..., 1:, :, :] = from_storage(self._rows(self._nodes(f)).transpose(0, 1, 4, 2, 5, 3), self.dtype)
         return full
 
     def energy(self, f: np.ndarray) -> np.ndarray:
         """Energy density u = sum_i f_i per node and right-hand side, (nx, ny, nz, K, C)."""
-        u = f.sum(axis=2).reshape(self.nx, self.NB, self.C, self.G, self.nz, self.K)
+        if f.dtype == self.dtype:
+            u = f.sum(axis=2)
+        else:  # stored in 16 bits: widen one direction at a time (a float32 copy of the field would double it)
+            u = from_storage(f[:, :, 0], self.dtype)
+            for q in range(1, NQ):
+                u += from_storage(f[:, :, q], self.dtype)
+        u = u.reshape(self.nx, self.NB, self.C, self.G, self.nz, self.K)
         return np.ascontiguousarray(self._rows(u.transpose(0, 1, 3, 4, 5, 2)))
 
     def vec(self, a: np.ndarray) -> np.ndarray:
@@ -1736,7 +1778,7 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
     docstring for the solvers and units.
     """
     t0 = time.perf_counter()
-    op = _Operator(problem, params.dtype)
+    op = _Operator(problem, params.dtype, params.storage)
     nrhs = op.C * op.K
     tol = params.tolerance
     history: list[float] = []
@@ -1757,7 +1799,7 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
         used.append("extrapolate" if extra else "iterate")
     krylov = params.solver == "bicgstab"
     if switched:  # auto, and plain iteration is slow
-        krylov = 6 * op.field_bytes <= params.memory_limit
+        krylov = 6 * op.field_bytes <= params.memory_limit and params.storage == "fp32"
         if not krylov:
             f, n, res, _ = _iterate(
                 op, f, tol, params.max_sweeps - sweeps, params.check_every, history, None, extrapolate=True, warmup=0
@@ -1846,9 +1888,10 @@ def _transmit(att, cx, cy, cz, out):  # pragma: no cover - compiled
 PLAIN_ITERATION_FIELDS = 2.3
 
 
-def memory_bytes(shape, nrhs: int, fields: float = PLAIN_ITERATION_FIELDS) -> float:
-    """Bytes a float32 solve on a grid of ``shape`` with ``nrhs`` right-hand sides holds (``fields`` fields)."""
-    return float(np.prod(shape)) * nrhs * NQ * 4 * fields
+def memory_bytes(shape, nrhs: int, fields: float = PLAIN_ITERATION_FIELDS, value_bytes: int = 4) -> float:
+    """Bytes a solve on a grid of ``shape`` with ``nrhs`` right-hand sides holds (``fields`` fields of
+    ``value_bytes`` per density: 4 for ``storage="fp32"``, 2 for ``"fp16"``)."""
+    return float(np.prod(shape)) * nrhs * NQ * value_bytes * fields
 
 
 def unscattered_energy(problem: LBProblem, dtype: str = "float32") -> np.ndarray:

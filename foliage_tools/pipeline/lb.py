@@ -45,6 +45,7 @@ from scipy import ndimage
 from foliage_tools.lighting import lb, single_scatter
 from foliage_tools.lighting.collision import LATTICES, PHASES, Medium, brown, density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.lighting.storage import STORAGES
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path, volume_path
 from foliage_tools.pipeline.plan import available_memory
@@ -88,6 +89,9 @@ class LBBakeParams:
     """σa = scale × (1 − r − t): 1 is the physical leaf; geist2008 used 0.125 (sec. 3)."""
     max_sweeps: int = 20000
     """Sweeps after which the solver stops short of ``tolerance`` (the bake then fails its accuracy check: exit 1)."""
+    storage: str = "fp32"
+    """``--storage``: the lattice densities stored in ``fp32`` or ``fp16`` (scaled binary16 with float32 arithmetic,
+    ``lighting.storage``: half the solver's memory). The grids written are float32 either way."""
     direct: DirectChoice = DirectChoice()
     """``--direct``: what ``primvars:foliage:lb:direct`` holds (exact shadow rays by default, or the lattice's own)."""
     lattice: str = "ordinates"
@@ -129,6 +133,11 @@ class LBBakeParams:
             raise UsageError(f"--resolution must be between 4 and 512 nodes, got {self.resolution}.")
         if self.solver not in lb.SOLVERS:
             raise UsageError(f"--solver must be one of {', '.join(lb.SOLVERS)}, got {self.solver!r}.")
+        if self.storage not in STORAGES:
+            raise UsageError(f"--storage must be one of {', '.join(STORAGES)}, got {self.storage!r}.")
+        if self.storage == "fp16" and self.solver == "bicgstab":
+            raise UsageError("--storage fp16 cannot be combined with --solver bicgstab (its Krylov vectors need more than "
+                             "16 bits); use --solver auto, iterate or extrapolate, or --storage fp32.")
         if not (0 < self.absorption_scale <= 1):
             raise UsageError(f"--absorption-scale must be in (0, 1], got {self.absorption_scale}.")
         if self.max_sweeps < 1:
@@ -207,8 +216,11 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
     # + the beam arrays (lb.BeamFields: direct and power in float64, the power again in the run layout): ~0.3 field;
     # + the single-scattering correction's float64 energy, extinction, emission and correction arrays: ~0.6 field
     correct = first_collision and params.single_scatter == "exact"
-    fields = lb.PLAIN_ITERATION_FIELDS + (0.3 if first_collision else 0.0) + (0.6 if correct else 0.0)
-    need, free = lb.memory_bytes(grid.shape, len(boundaries) * medium.channels, fields), available_memory()
+    extra = lb.PLAIN_ITERATION_FIELDS - 2.0 + (0.3 if first_collision else 0.0) + (0.6 if correct else 0.0)
+    nrhs = len(boundaries) * medium.channels
+    # the 2 fields of plain iteration in the storage format, the rest (outputs, beams) in float32
+    need = lb.memory_bytes(grid.shape, nrhs, 2.0, 2 if params.storage == "fp16" else 4) + lb.memory_bytes(grid.shape, nrhs, extra)
+    free = available_memory()
     if need > free:
         raise UsageError(
             f"prototype <{proto.path}>: the LB solve on a {'x'.join(map(str, grid.shape))} grid with "
@@ -216,7 +228,7 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
             "Lower --resolution (memory falls with its cube), or use --bases sun (1/18 of --bases all); "
             "`foliage plan` shows the memory before a bake."
         )
-    lbp = lb.LBParams(tolerance=params.tolerance, solver=params.solver, max_sweeps=params.max_sweeps)
+    lbp = lb.LBParams(tolerance=params.tolerance, solver=params.solver, max_sweeps=params.max_sweeps, storage=params.storage)
     res = lb.solve(problem, lbp)
     total = res.energy_density
     if correct:
@@ -330,7 +342,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         protos.append({
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
-            "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source,
+            "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source, "storage": params.storage,
             "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": e_scattered.mean(axis=0).tolist(),
             "e_scattered_lattice_mean": bake.e_scattered.mean(axis=0).tolist(),
             "e_direct_volume_mean": bake.e_direct.mean(axis=0).tolist(),
@@ -356,7 +368,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
     first = protos[0]
     report.stats = {
         "solver": first["solver"], "iterations": first["iterations"], "residual": first["residual"],
-        "resolution": first["resolution"], "bases": params.bases, "mlups": first["mlups"],
+        "resolution": first["resolution"], "bases": params.bases, "mlups": first["mlups"], "storage": params.storage,
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "absorption_scale": params.absorption_scale, "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},

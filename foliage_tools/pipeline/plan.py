@@ -97,6 +97,8 @@ def available_memory() -> float:
 class PlanParams:
     resolution: int = 64
     bases: str = "sun"
+    storage: str = "fp32"
+    """LB density storage (``foliage lb --storage``): fp16 holds the solver's two fields in 2 bytes per value."""
     depth: str = "auto"
     rays_per_leaf: int = 16
     directions: int = 16
@@ -107,6 +109,8 @@ class PlanParams:
             raise UsageError(f"--resolution must be between 4 and 512, got {self.resolution}.")
         if self.bases not in ("sun", "all"):
             raise UsageError(f"--bases must be sun or all, got {self.bases!r}.")
+        if self.storage not in ("fp32", "fp16"):
+            raise UsageError(f"--storage must be fp32 or fp16, got {self.storage!r}.")
         if self.depth not in DEPTH_PATHS:
             raise UsageError(f"--depth must be one of {', '.join(DEPTH_PATHS)}, got {self.depth!r}.")
         if self.rays_per_leaf < 1 or self.directions < 1 or self.reference_paths < 1:
@@ -134,7 +138,9 @@ def plan(path: Path, params: PlanParams) -> Report:
         if params.bases == "sun":
             lb_s += nodes * LB_EXACT_FIRST_ORDER_S_PER_NODE
         # the sun bake's first-collision beam arrays and single-scattering correction (pipeline.lb.bake_prototype)
-        lb_bytes = memory_bytes(grid.shape, rhs, PLAIN_ITERATION_FIELDS + (0.9 if params.bases == "sun" else 0.0))
+        # (as pipeline.lb.bake_prototype: the two fields of plain iteration in the storage format, the rest float32)
+        lb_bytes = (memory_bytes(grid.shape, rhs, 2.0, 2 if params.storage == "fp16" else 4)
+                    + memory_bytes(grid.shape, rhs, PLAIN_ITERATION_FIELDS - 2.0 + (0.9 if params.bases == "sun" else 0.0)))
         fast = n >= AUTO_FAST_THRESHOLD
         smax_s = n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S
         instances = len(scene.instances_of(i))
@@ -196,7 +202,7 @@ def plan(path: Path, params: PlanParams) -> Report:
         direct_rays += placed_rays
         total_s["direct"] += placed_rays / PLACED_DIRECT_RAYS_PER_S
     report.stats = {
-        "resolution": params.resolution, "bases": params.bases, "depth": depth,
+        "resolution": params.resolution, "bases": params.bases, "storage": params.storage, "depth": depth,
         "prototypes": protos, "instances": len(scene.instances), "leaves_total": int(leaves_total),
         "seconds_estimate": total_s, "peak_memory_bytes": peak, "direct_rays": int(direct_rays),
         "world_triangles": int(world_tris), "world_memory_bytes": world_bytes, "forest": forest,

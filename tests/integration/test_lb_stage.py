@@ -67,6 +67,21 @@ def test_all_bases_write_the_19_relighting_grids(tmp_path):
     assert sorted(names) == sorted(["lbAmbient"] + [f"lbBase{k:02d}" for k in range(1, 19)])
 
 
+def test_storage_fp16_writes_float32_grids_and_says_so(tmp_path):
+    """``--storage fp16`` (lighting.storage): the same 19 float32 grids, the choice in the report; fp32 is the default."""
+    import json
+
+    r = foliage("lb", EXAMPLE, "-o", tmp_path / "h.usda", "--resolution", "12", "--bases", "all", "--storage", "fp16", "--json")
+    assert r.returncode == 0, r.stderr
+    stats = json.loads(r.stdout)["stats"]
+    assert stats["storage"] == "fp16" and stats["prototypes"][0]["storage"] == "fp16" and "bicgstab" not in stats["solver"]
+    g = read_grid(tmp_path / "h.vdb", "lbBase03")
+    assert g.values.dtype == np.float32 and np.all(np.isfinite(g.values))
+    assert LBBakeParams(optics=parse_leaf_optics(None)).storage == "fp32"
+    bad = foliage("lb", EXAMPLE, "-o", tmp_path / "b.usda", "--storage", "fp16", "--solver", "bicgstab")
+    assert bad.returncode == 2 and "--storage fp16 cannot be combined with --solver bicgstab" in bad.stderr
+
+
 def test_bad_lb_options_are_usage_errors(tmp_path):
     r = foliage("lb", EXAMPLE, "-o", tmp_path / "o.usda", "--tolerance", "2")
     assert r.returncode == 2 and "--tolerance" in r.stderr

@@ -36,6 +36,10 @@ def test_plan_lb_memory_follows_the_right_hand_sides():
     # 18x the sweeps (a faster kernel per rhs); the per-node work (density, beams: the same) and the sun bake's
     # exact first order (only there) do not scale with the right-hand sides
     assert all_["seconds_estimate"]["lb"] > sun["seconds_estimate"]["lb"]
+    # --storage fp16: the two fields of plain iteration in 2 bytes per value, the other 0.3 field float32
+    half = json.loads(foliage("plan", EXAMPLE, "--resolution", "32", "--bases", "all", "--storage", "fp16", "--json").stdout)["stats"]
+    assert half["storage"] == "fp16"
+    assert half["prototypes"][0]["lb_memory_bytes"] == pytest.approx(p_all["lb_memory_bytes"] * 1.3 / 2.3, rel=1e-9)
 
 
 def test_plan_counts_every_instance_of_a_forest():
