@@ -80,7 +80,8 @@ def main(argv: list[str]) -> int:
     print(f"{args.side ** 2:,} instances of 3 prototypes (5k/10k/20k leaves): foliage bake {seconds:.0f} s, peak {peak:.2f} GB, "
           f"exit {r.returncode}")
     for name, st in stages.items():
-        print(f"  {name:<8} {st['seconds']:7.1f} s")
+        peak_gb = st.get("peak_rss_bytes") and st["peak_rss_bytes"] / 1e9
+        print(f"  {name:<8} {st['seconds']:7.1f} s, peak so far {peak_gb:.2f} GB")
     print(f"  (the exact direct light is traced once before the stages: {report['stats']['direct']['seconds']:.1f} s; the "
           "forest lattice runs in the first stage that needs it, smax, and is reused)")
     # the ground truth for every instance: the reference through the placed prototypes (nothing copied)

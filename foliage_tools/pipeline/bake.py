@@ -83,8 +83,13 @@ PREVIEW_LOD = 0.25
 
 
 def _stage(name: str, fn, *args, **kwargs):
+    import resource
+
     try:
-        return fn(*args, **kwargs)
+        report = fn(*args, **kwargs)
+        # the process's peak resident memory when the stage ended (kB on Linux): a stage that raised it is its own
+        report.stats["peak_rss_bytes"] = int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+        return report
     except FoliageError as exc:
         exc.args = (f"bake stage '{name}': {exc}",)
         raise
@@ -148,7 +153,8 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
         report.findings += [f"{name}: {w}" for w in r.findings]
     report.stats = {
         "result": str(final),
-        "stages": {name: {"seconds": r.seconds, "outputs": r.outputs} for name, r in stages.items()},
+        "stages": {name: {"seconds": r.seconds, "outputs": r.outputs, "peak_rss_bytes": r.stats.get("peak_rss_bytes")}
+                   for name, r in stages.items()},
         "bench": stages["bench"].stats if "bench" in stages else None,
         "direct": stages["smax"].stats.get("direct"),
     }

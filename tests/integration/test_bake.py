@@ -133,6 +133,9 @@ def test_layer_format_usdc_writes_binary_layers_that_chain_and_validate(tmp_path
     report = run_bake(EXAMPLE, tmp_path / "out", BakeParams(optics=parse_leaf_optics(None), resolution=8, layer_format="usdc"))
     final = Path(report.stats["result"])
     assert final.name == "tree_small.lb.usdc" and final.read_bytes()[:8] == b"PXR-USDC"  # the crate file's magic
+    # each stage's peak memory so far: a process peak, so it never falls from one stage to the next
+    peaks = [st["peak_rss_bytes"] for st in report.stats["stages"].values()]
+    assert peaks[0] > 50e6 and peaks == sorted(peaks)
     layer = Sdf.Layer.FindOrOpen(str(final))
     assert list(layer.subLayerPaths)[0].endswith("tree_small.spp.usdc")
     stage = open_stage(final)
