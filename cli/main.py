@@ -239,12 +239,17 @@ def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, ray
             console.stdout.print(times)
             if s["forest"] is not None:
                 f = s["forest"]
+                lone = s["traced"] == "lone trees"
+                rays = (f"the per-leaf shadow rays and the gather trace lone trees ({s['traced_triangles']:,} triangles, "
+                        f"{s['world_memory_bytes'] / 1e9:.2f} GB) and each instance's direct mean is traced through "
+                        "every placed instance (nothing copied)" if lone else
+                        f"the shadow rays and gather trace every instance ({s['traced_triangles']:,} triangles, "
+                        f"{s['world_memory_bytes'] / 1e9:.2f} GB)")
+                how = "through its placed prototypes" if lone else "copying every instance"
                 console.stdout.print(
-                    f"forest: {s['instances']:,} instances, {s['world_triangles']:,} placed triangles; the shadow rays "
-                    f"and gather trace {s['traced']} ({s['traced_triangles']:,} triangles, "
-                    f"{s['world_memory_bytes'] / 1e9:.2f} GB); the forest lattice has {f['nodes']:,} nodes "
-                    f"(~{f['seconds_estimate_per_stage']:.3g} s, once per bake); the reference would hold "
-                    f"{s['reference_memory_bytes'] / 1e9:.2f} GB (it traces every instance)")
+                    f"forest: {s['instances']:,} instances, {s['world_triangles']:,} placed triangles; {rays}; the "
+                    f"forest lattice has {f['nodes']:,} nodes (~{f['seconds_estimate_per_stage']:.3g} s, once per "
+                    f"bake); the reference would hold {s['reference_memory_bytes'] / 1e9:.2f} GB (it traces {how})")
 
         return execute(lambda progress: do_plan(scene, params), as_json=as_json, quiet=quiet, render=render)
 
