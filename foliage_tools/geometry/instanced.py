@@ -40,10 +40,19 @@ from numba import njit
 
 from foliage_tools.geometry.rays import MISS, RayScene, _OFFSET_RELATIVE, _as_rays
 
-__all__ = ["InstancedRayScene"]
+__all__ = ["InstancedRayScene", "cofactors"]
 
 #: Most cells of the top-level grid (a cell costs 8 B of offsets).
 _MAX_CELLS = 1 << 22
+
+
+def cofactors(linear: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) cofactor matrices det(A) A⁻ᵀ of invertible (N, 3, 3) maps A: a placed triangle's area vector is
+    cof(A) a (a: its area vector before the map), so its area is |cof(A) a| and its projection on s is a·(cof(A)ᵀ s)."""
+    linear = np.asarray(linear, dtype=np.float64)
+    if len(linear) == 0:
+        return np.zeros((0, 3, 3))
+    return np.linalg.det(linear)[:, None, None] * np.transpose(np.linalg.inv(linear), (0, 2, 1))
 
 
 class InstancedRayScene:

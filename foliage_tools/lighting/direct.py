@@ -48,6 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from foliage_tools.geometry.instanced import cofactors
 from foliage_tools.geometry.leafpoints import LeafSampler, check_scene, lattice
 from foliage_tools.geometry.rays import PeriodicRayScene, RayScene
 
@@ -258,7 +259,8 @@ def solve_instances(scene, leaf_of_triangle, sun_direction, *, samples: int, see
     half = samples // 2
     halves = np.zeros((n, 2))
     lin = scene.linear
-    cof = np.linalg.det(lin)[:, None, None] * np.transpose(scene.inverse, (0, 2, 1)) if n else lin
+    cof = cofactors(lin)
+    offset = scene.offset_distance()
     rng = np.random.default_rng(np.random.SeedSequence(seed))
     per_chunk = max(1, _CHUNK_POINTS // samples)
     done = 0
@@ -292,7 +294,7 @@ def solve_instances(scene, leaf_of_triangle, sun_direction, *, samples: int, see
             weight = (placed / np.linalg.norm(a_vec[which.ravel()], axis=1)).reshape(k, samples)
             toward = cos != 0.0
             visible = np.zeros(inst.size, dtype=bool)
-            origins = world[toward] + scene.offset_distance() * np.sign(cos[toward])[:, None] * normal[toward]
+            origins = world[toward] + offset * np.sign(cos[toward])[:, None] * normal[toward]
             visible[toward] = ~scene.occluded(origins, np.broadcast_to(sun, origins.shape))
             value = (np.abs(cos) * visible).reshape(k, samples) * weight
             for h in range(2):

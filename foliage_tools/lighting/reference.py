@@ -162,7 +162,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from foliage_tools.geometry.instanced import InstancedRayScene
+from foliage_tools.geometry.instanced import InstancedRayScene, cofactors
 from foliage_tools.geometry.rays import PeriodicRayScene, RayScene
 from foliage_tools.lighting.optics import LeafOptics
 
@@ -186,6 +186,14 @@ def _unit(v, name: str) -> np.ndarray:
     a = a / n
     a.flags.writeable = False
     return a
+
+
+def _set_frozen(obj, **fields) -> None:
+    """Set a frozen dataclass's fields after validation, each array made read-only."""
+    for name, value in fields.items():
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+        object.__setattr__(obj, name, value)
 
 
 @dataclass(frozen=True, eq=False)
@@ -227,13 +235,9 @@ class Placements:
                              "describe the same N instances: (N, 4, 4), (N,), (N,)")
         if proto.size and (proto.min() < 0 or proto.max() >= len(tris)):
             raise ValueError(f"prototype_of must index the {len(tris)} prototypes")
-        for a in (*tris, *leaves, proto, offset, m):
+        for a in (*tris, *leaves):
             a.flags.writeable = False
-        object.__setattr__(self, "triangles", tris)
-        object.__setattr__(self, "leaf_of_triangle", leaves)
-        object.__setattr__(self, "prototype_of", proto)
-        object.__setattr__(self, "leaf_offset", offset)
-        object.__setattr__(self, "transforms", m)
+        _set_frozen(self, triangles=tris, leaf_of_triangle=leaves, prototype_of=proto, leaf_offset=offset, transforms=m)
 
     @property
     def n_instances(self) -> int:
@@ -256,8 +260,7 @@ class Placements:
         in the prototype, cof(A) = det(A) A⁻ᵀ)."""
         leaf_area = np.zeros(self.n_result_leaves)
         inst_area = np.zeros(self.n_instances)
-        lin = self.transforms[:, :3, :3]
-        cof = np.linalg.det(lin)[:, None, None] * np.transpose(np.linalg.inv(lin), (0, 2, 1)) if len(lin) else lin
+        cof = cofactors(self.transforms[:, :3, :3])
         for p, (t, v) in enumerate(zip(self.triangles, self.leaf_of_triangle)):
             sel = np.flatnonzero(self.prototype_of == p)
             on = v >= 0
@@ -348,14 +351,7 @@ class ReferenceInputs:
             raise ValueError(f"sky_radiance must be 1 or 3 finite numbers >= 0, got {self.sky_radiance!r}")
         sun = _unit(self.sun_direction, "sun_direction")
         up = _unit(self.up, "up")
-        for a in (tri, leaf, area, sky):
-            a.flags.writeable = False
-        object.__setattr__(self, "triangles", tri)
-        object.__setattr__(self, "leaf_of_triangle", leaf)
-        object.__setattr__(self, "leaf_area", area)
-        object.__setattr__(self, "sky_radiance", sky)
-        object.__setattr__(self, "sun_direction", sun)
-        object.__setattr__(self, "up", up)
+        _set_frozen(self, triangles=tri, leaf_of_triangle=leaf, leaf_area=area, sky_radiance=sky, sun_direction=sun, up=up)
         if self.period is not None:
             p = tuple(float(v) for v in np.asarray(self.period, dtype=np.float64).reshape(-1))
             if len(p) != 2 or not all(math.isfinite(v) and v > 0 for v in p):
@@ -661,9 +657,7 @@ class _PlacedSunSource:
         self.scene = scene
         self.sun = sun
         self.pl = placements
-        lin = placements.transforms[:, :3, :3]
-        sigma = np.linalg.det(lin)[:, None] * np.einsum("nij,j->ni", np.linalg.inv(lin), sun) if len(lin) else \
-            np.zeros((0, 3))
+        sigma = np.einsum("nji,j->ni", cofactors(placements.transforms[:, :3, :3]), sun)  # cof(A)ᵀ s
         self.sigma = sigma
         self.area_vec, self.cum_area = [], []
         proj = np.zeros(placements.n_instances)

@@ -153,13 +153,12 @@ def instance_direct(scene: Scene, sun: Sun, progress: Progress, *, seed: int = 0
     """Each instance's mean E_direct, with shadow rays through every placed instance (geometry.instanced: one
     ray scene per prototype, nothing copied)."""
     from foliage_tools.geometry.instanced import InstancedRayScene
-    from foliage_tools.pipeline.world import prototype_geometry
+    from foliage_tools.pipeline.world import placed_prototypes
 
     n = len(scene.instances)
     k = instance_samples(n)
-    tris, leaves = prototype_geometry(scene)
-    rays = InstancedRayScene(tris, np.array([i.transform for i in scene.instances]),
-                             np.array([i.prototype for i in scene.instances], dtype=np.int64))
+    tris, leaves, transforms, proto = placed_prototypes(scene)
+    rays = InstancedRayScene(tris, transforms, proto)
     progress.step(f"direct sunlight of every instance: {k} shadow rays each through {n:,} placed instances", total=n)
     done = [0]
 

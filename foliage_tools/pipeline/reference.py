@@ -29,8 +29,8 @@ from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_ed
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.pipeline.instances import bake_instance_edits, instance_edits
-from foliage_tools.pipeline.world import (WORLD_MAX_TRIANGLES, World, assemble, pooled_leaf_offsets, prototype_geometry, prototype_means,
-                                          traced_alone, world_triangles)
+from foliage_tools.pipeline.world import (WORLD_MAX_TRIANGLES, World, assemble, placed_prototypes, pooled_leaf_offsets,
+                                          prototype_means, traced_alone, world_triangles)
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
 
@@ -171,11 +171,9 @@ def check_world_fits(scene: Scene) -> None:
 def placed_inputs(scene: Scene, sun: Sun, optics: LeafOptics) -> tuple[reference.ReferenceInputs, np.ndarray]:
     """The reference's inputs for a forest traced through its placed prototypes, nothing copied: each prototype
     leaf pooled over its instances (and each instance's means tallied apart). Also the prototypes' first leaves."""
-    tris, leaves = prototype_geometry(scene)
+    tris, leaves, transforms, proto = placed_prototypes(scene)
     pooled = pooled_leaf_offsets(scene)
-    proto = np.array([i.prototype for i in scene.instances], dtype=np.int64)
-    placements = reference.Placements(tris, leaves, np.array([i.transform for i in scene.instances]), proto,
-                                      pooled[proto])
+    placements = reference.Placements(tris, leaves, transforms, proto, pooled[proto])
     area = np.zeros(int(pooled[-1]))
     area[:placements.n_result_leaves] = placements.areas[0]
     inputs = reference.ReferenceInputs(

@@ -159,6 +159,14 @@ def prototype_geometry(scene: Scene) -> tuple[list[np.ndarray], list[np.ndarray]
     return tris, leaves
 
 
+def placed_prototypes(scene: Scene) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray, np.ndarray]:
+    """The scene as placements, nothing copied: :func:`prototype_geometry`, (N, 4, 4) instance transforms and
+    (N,) their prototypes."""
+    tris, leaves = prototype_geometry(scene)
+    transforms = np.array([i.transform for i in scene.instances], dtype=np.float64).reshape(-1, 4, 4)
+    return tris, leaves, transforms, np.array([i.prototype for i in scene.instances], dtype=np.int64)
+
+
 def pooled_leaf_offsets(scene: Scene) -> np.ndarray:
     """(P + 1,) first leaf of each prototype when its leaves are pooled over its instances (last: the total)."""
     return np.concatenate([[0], np.cumsum([p.leaves.count for p in scene.prototypes])]).astype(np.int64)
