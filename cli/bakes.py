@@ -36,10 +36,15 @@ def _eight_directions(ctx: click.Context, param: click.Parameter, value: int) ->
 @click.option("--path", "path_", type=click.Choice(["auto", "reference", "fast"]), default="auto", show_default=True,
               help="reference: the thesis' O(N²) neighbour binning (sec. 5.6); fast: exact near sums + FFT far field; "
                    "auto: reference below 20k leaves.")
+@click.option("--scatter", type=click.Choice(["leaves", "paper"]), default="leaves", show_default=True,
+              help="How E_scattered is lit. leaves: the sun at each leaf's scatterers is the neighbours' exact lit "
+                   "fractions (the shadow rays, traced even with --direct volume) and every order of scattering is "
+                   "counted; paper: boulanger2008's one bounce (eq. 5.24), whose linear envelope darkens the "
+                   "scatterers (0.6-0.74 of the reference's scattered light on the README's trees).")
 @direct_options
 @bake_options
 @common_options
-def smax(scene: Path, out: Path, directions: int, path_: str, direct_mode: str, direct_samples: int, sun: str | None,
+def smax(scene: Path, out: Path, directions: int, path_: str, scatter: str, direct_mode: str, direct_samples: int, sun: str | None,
          leaf_optics: str | None, wood_reflectance: float | None, as_json: bool, quiet: bool, verbose: int) -> None:
     """Per-leaf envelope distances s_max and Boulanger's tree lighting (boulanger2008 ch. 5).
 
@@ -61,7 +66,7 @@ def smax(scene: Path, out: Path, directions: int, path_: str, direct_mode: str, 
         params = SmaxParams(
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
-            path=path_, direct=direct_choice(direct_mode, direct_samples),
+            path=path_, direct=direct_choice(direct_mode, direct_samples), scatter=scatter,
         )
 
         def render(report) -> None:

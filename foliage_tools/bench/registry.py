@@ -11,13 +11,16 @@ from __future__ import annotations
 import importlib
 import pkgutil
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.scene.model import Scene
+
+if TYPE_CHECKING:
+    from foliage_tools.pipeline.direct import DirectBake
 
 
 @dataclass(frozen=True)
@@ -28,6 +31,8 @@ class BenchContext:
     sun: Sun
     optics: LeafOptics
     warnings: list[str] = field(default_factory=list)
+    direct: "DirectBake | None" = None
+    """The exact direct light, traced once for all methods (its seconds are already in every method's)."""
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,14 @@ position and orientation inside the envelope:
   (5.18), (5.24)-(5.26), (5.33)), with the averages over leaf orientation of
   Appendix B (eqs. (B.5), (B.6)).
 
+Two departures from the thesis, each an option of :func:`solve` (the paper's
+model is the default there; ``foliage smax`` uses both, ``--scatter paper``
+the thesis alone): the sun at the scatterers from the leaves' exact lit
+fractions instead of eq. (5.24)'s linear envelope
+(:mod:`foliage_tools.lighting.scatterer_sun`, which measures why), and the
+light scattered more than once (:func:`higher_orders`), which the thesis
+leaves out.
+
 The thesis returns outgoing radiance; here every term is returned as the
 **irradiance** on the leaf's two faces, which is what the project compares
 across methods (DESIGN.md sec. 3): the radiance leaving a face follows from
@@ -54,6 +62,8 @@ __all__ = [
     "g3",
     "interpolated_smax",
     "outgoing_radiance",
+    "higher_orders",
+    "recollision_probability",
     "relative_expm1",
     "sky_irradiance",
     "sky_radiance_per_direction",
@@ -156,7 +166,8 @@ class LightingResult:
     e_direct: np.ndarray
     """Unscattered sun irradiance, both faces (only the lit face receives it)."""
     e_scattered: np.ndarray
-    """Sun light scattered once by neighbouring leaves (the model's only scattered term)."""
+    """Sun light scattered by neighbouring leaves: once (the paper's only scattered term), or every order with
+    ``solve(..., all_orders=True)``."""
     e_sky: np.ndarray
     """Direct sky and ground light. Not part of ``e_scattered``: the project's
     comparisons (DESIGN.md sec. 3) light the tree by the sun alone."""
@@ -169,7 +180,8 @@ class LightingResult:
     seconds: float
     """Wall time of :func:`solve`."""
     stats: dict = field(default_factory=dict)
-    """``leaves``, ``sun_smax_mean`` (mean s̃_max toward the sun), ``g3_min``."""
+    """``leaves``, ``sun_smax_mean`` (mean s̃_max toward the sun), ``g3_min``, ``recollision_probability``,
+    ``scatterer_sun`` (``envelope``: eq. (5.24); ``leaves``: the lit fractions), ``all_orders``."""
 
 
 # --------------------------------------------------------------------------
@@ -302,11 +314,13 @@ def sun_direct_irradiance(normals, smax, tau, light_dir, directions) -> tuple[np
     return np.maximum(cos, 0.0) * att, np.maximum(-cos, 0.0) * att
 
 
-def sun_indirect_irradiance(normals, smax, tau, light_dir, optics, directions) -> tuple[np.ndarray, np.ndarray]:
+def sun_indirect_irradiance(normals, smax, tau, light_dir, optics, directions, *,
+                            scatterer_sun=None) -> tuple[np.ndarray, np.ndarray]:
     """Unit-sun irradiance of the front and back faces from one bounce on neighbour leaves.
 
     eq. (5.11) gives E_front = A Σ_j M(N·ω_j) L_o_sample(P, j) (back: M(-N·ω_j)),
-    with L_o_sample of eq. (5.24):
+    with L_o_sample = G1 I(P, j) (eq. (5.21)) and I of eq. (5.20). The paper's
+    linear envelope (eqs. (5.22)-(5.23)) gives eq. (5.24):
 
         L_o_sample = G1 E_sun exp(-G2 Σ_j' M(ω_l·ω_j') s_max(P, ω_j')) (1 - exp(-G3 s_j)) / G3
                    = G1 E_sun exp(-τ s̃_max(P, ω_l)) s_j φ(G3 s_j),   φ(x) = (1 - e^{-x})/x,
@@ -316,10 +330,16 @@ def sun_indirect_irradiance(normals, smax, tau, light_dir, optics, directions) -
     s φ(G3 s) apart is the same product without the 0/0. A G1 uses A ρ = 2 τ
     (eq. (5.5)), so only τ enters.
 
+    With ``scatterer_sun`` (T̄_j of :mod:`foliage_tools.lighting.scatterer_sun`,
+    the sun's transmission at the scatterers of each octant from the leaves'
+    exact lit fractions) eq. (5.20) is evaluated as I = T̄_j E_sun s_j φ(τ s_j)
+    instead: no linear envelope, no eq. (5.7) attenuation.
+
     Parameters
     ----------
     normals : (L, 3); smax : (L, 8); tau : float; light_dir : (3,) toward the sun;
-    optics : (4, 3) rows ρ_rf, ρ_tf, ρ_rb, ρ_tb; directions : (8, 3)
+    optics : (4, 3) rows ρ_rf, ρ_tf, ρ_rb, ρ_tb; directions : (8, 3);
+    scatterer_sun : (L, 8) in [0, 1] or None (the paper's eq. (5.24))
 
     Returns two (L, 3) arrays (multiply by the sun's irradiance).
     """
@@ -332,14 +352,40 @@ def sun_indirect_irradiance(normals, smax, tau, light_dir, optics, directions) -
     rho_bar = optics.sum(axis=0)
     # A G1 = (A ρ) G1 / ρ with A ρ = 2 τ: (8, 3)
     area_g1 = 2.0 * tau * g1(alpha[:, None], rho_bar[None, :], rho_t[None, :], 1.0)
-    # eq. (5.24) times exp(-τ s̃_max) common to all j: (L, 8)
-    sun_att = np.exp(-tau * interpolated_smax(smax, light_dir, dirs))
-    path = smax * relative_expm1(g3(light_dir, dirs, tau)[None, :] * smax)
-    sample = (sun_att[:, None] * path)[:, :, None] * area_g1[None, :, :]  # A L_o_sample: (L, 8, 3)
+    if scatterer_sun is None:
+        # eq. (5.24) times exp(-τ s̃_max) common to all j: (L, 8)
+        sun_att = np.exp(-tau * interpolated_smax(smax, light_dir, dirs))
+        path = sun_att[:, None] * smax * relative_expm1(g3(light_dir, dirs, tau)[None, :] * smax)
+    else:
+        t_bar = np.asarray(scatterer_sun, dtype=float)
+        if t_bar.shape != smax.shape or not np.all(np.isfinite(t_bar)) or np.any((t_bar < 0) | (t_bar > 1)):
+            raise ValueError(f"scatterer_sun must be {smax.shape} values in [0, 1]")
+        path = t_bar * smax * relative_expm1(tau * smax)  # eq. (5.20) with the scatterers' own sun
+    sample = path[:, :, None] * area_g1[None, :, :]  # A L_o_sample: (L, 8, 3)
     cos = np.asarray(normals, dtype=float) @ dirs.T
     front = np.einsum("lj,ljc->lc", np.maximum(cos, 0.0), sample)
     back = np.einsum("lj,ljc->lc", np.maximum(-cos, 0.0), sample)
     return front, back
+
+
+def recollision_probability(attenuation) -> float:
+    """p: the chance that light a leaf scatters meets another leaf, 1 - the mean over leaves and octants of
+    eq. (5.30)'s exp(-τ s_max) (a uniformly random direction of octant j escapes with that probability)."""
+    att = np.asarray(attenuation, dtype=float)
+    return float(1.0 - att.mean()) if att.size else 0.0
+
+
+def higher_orders(albedo, p: float) -> np.ndarray:
+    """1 / (1 - ω p): the scattered light of every order over the first (beyond boulanger2008, which stops at one).
+
+    Light scattered k times is intercepted again with probability p and re-scattered with the leaf albedo ω;
+    if every order is spread over the crown like the one before (the "spectral invariant" of canopy
+    radiative transfer, reviewed by Wang et al. 2018, Remote Sens. 10(11), 1805), order k+1 receives ω p of
+    order k, so all orders together receive Σ_k (ω p)^k = 1/(1 - ω p) times the first. Finite for ω p < 1,
+    which holds for any leaf (ω <= 1) of a crown that lets some light out (p < 1).
+    """
+    w = np.clip(np.asarray(albedo, dtype=float), 0.0, 1.0)
+    return 1.0 / (1.0 - w * min(max(float(p), 0.0), 1.0 - 1e-9))
 
 
 def outgoing_radiance(front_irradiance, back_irradiance, optics) -> tuple[np.ndarray, np.ndarray]:
@@ -359,8 +405,13 @@ def outgoing_radiance(front_irradiance, back_irradiance, optics) -> tuple[np.nda
 # --------------------------------------------------------------------------
 
 
-def solve(normals, smax, tau, *, up=(0.0, 0.0, 1.0), params: BoulangerParams) -> LightingResult:
+def solve(normals, smax, tau, *, up=(0.0, 0.0, 1.0), params: BoulangerParams, scatterer_sun=None,
+          all_orders: bool = False) -> LightingResult:
     """Per-leaf direct, scattered and sky irradiance of one tree (boulanger2008 sec. 5.3-5.4).
+
+    The paper's model with the defaults; ``scatterer_sun`` (:mod:`foliage_tools.lighting.scatterer_sun`) takes
+    the sun at the scatterers from the leaves' exact lit fractions (:func:`sun_indirect_irradiance`) and
+    ``all_orders`` scales the one-bounce light by :func:`higher_orders` for the light scattered more than once.
 
     Parameters
     ----------
@@ -400,7 +451,11 @@ def solve(normals, smax, tau, *, up=(0.0, 0.0, 1.0), params: BoulangerParams) ->
     optics = params.optics
 
     d_front, d_back = sun_direct_irradiance(n, s, tau, sun, dirs)
-    s_front, s_back = sun_indirect_irradiance(n, s, tau, sun, optics, dirs)
+    s_front, s_back = sun_indirect_irradiance(n, s, tau, sun, optics, dirs, scatterer_sun=scatterer_sun)
+    p_recollide = recollision_probability(np.exp(-tau * s))
+    if all_orders:  # ω = ρ̄ / 2, the albedo of a face averaged over the two (eq. (5.19))
+        orders = higher_orders(optics.sum(axis=0) / 2.0, p_recollide)
+        s_front, s_back = s_front * orders, s_back * orders
     sky = np.asarray(params.sky_radiance, dtype=float)
     if sky.ndim == 1:
         sky = sky_radiance_per_direction(sky, params.ground_reflectance, dirs, sample_frame(up)[1])
@@ -419,5 +474,8 @@ def solve(normals, smax, tau, *, up=(0.0, 0.0, 1.0), params: BoulangerParams) ->
             "leaves": int(n.shape[0]),
             "sun_smax_mean": float(interpolated_smax(s, sun, dirs).mean()) if n.shape[0] else 0.0,
             "g3_min": float(g3(sun, dirs, tau).min()),
+            "recollision_probability": p_recollide,
+            "scatterer_sun": "leaves" if scatterer_sun is not None else "envelope",
+            "all_orders": bool(all_orders),
         },
     )

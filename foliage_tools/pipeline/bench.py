@@ -97,7 +97,7 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
                          "binned_rms_total": None, "rel_rms_total_volume": None})
             progress.advance()
             continue
-        ctx = BenchContext(scene=scene, sun=sun, optics=params.optics, warnings=report.warnings)
+        ctx = BenchContext(scene=scene, sun=sun, optics=params.optics, warnings=report.warnings, direct=exact)
         t = time.perf_counter()
         out = m.run(ctx)
         seconds_volume = time.perf_counter() - t

@@ -41,6 +41,9 @@ DENSITY_S_PER_LEAF = 2.2e-6
 #: smax: reference pairs per second (O(N^2), bench_smax.py: 40k leaves 4.1-4.3 s, 100k 25-26 s) and
 #: fast path per leaf (near field to 4.3 cells: 40k 0.26 s, 100k 0.62 s).
 SMAX_PAIRS_PER_S, SMAX_FAST_S_PER_LEAF = 3.8e8, 6.3e-6
+#: smax --scatter leaves: (leaf, scatterer) pairs per second of lighting.scatterer_sun (/tmp timing of 5k, 20k and
+#: 100k random leaves on the shared 2-core host at load 5-7, 2026-12-02: 3.3-4.6e7; an idle host is ~2x faster).
+SMAX_SCATTER_PAIRS_PER_S = 4.0e7
 #: SPP ray-count depths: crossing-counting rays per second (bench_sppg.py: 50k leaves x 16 rays x 34 in 42 s).
 SPP_RAYS_PER_S = 6.5e5
 #: Monte Carlo reference: sun paths per second on 2 workers (bench_reference.py: 3.9e6 on a 2k-leaf crown;
@@ -117,6 +120,15 @@ class PlanParams:
             raise UsageError("--rays-per-leaf, --directions and --reference-paths must be >= 1.")
 
 
+def scatterer_pairs(n: int) -> int:
+    """(leaf, scatterer) pairs lighting.scatterer_sun sums for n leaves (all, or the nearest and a subset)."""
+    from foliage_tools.lighting.scatterer_sun import MAX_PAIRS, MIN_FAR, NEAR
+
+    if n * n <= MAX_PAIRS:
+        return n * n
+    return n * (min(NEAR, n) + min(n, max(MIN_FAR, (MAX_PAIRS - n * min(NEAR, n)) // n)))
+
+
 def plan(path: Path, params: PlanParams) -> Report:
     report = Report(command="plan", inputs=[str(path)])
     scene, warnings = read_scene(path)
@@ -142,7 +154,7 @@ def plan(path: Path, params: PlanParams) -> Report:
         lb_bytes = (memory_bytes(grid.shape, rhs, 2.0, 2 if params.storage == "fp16" else 4)
                     + memory_bytes(grid.shape, rhs, PLAIN_ITERATION_FIELDS - 2.0 + (0.9 if params.bases == "sun" else 0.0)))
         fast = n >= AUTO_FAST_THRESHOLD
-        smax_s = n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S
+        smax_s = (n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S) + scatterer_pairs(n) / SMAX_SCATTER_PAIRS_PER_S
         instances = len(scene.instances_of(i))
         spp_s = n * DENSITY_S_PER_LEAF + min(max(instances, 1), SPP_MAX_PLACEMENTS) * n * SPP_S_PER_LEAF_PLACEMENT
         if depth == "rays":

@@ -2,7 +2,9 @@
 
 boulanger2008 chapter 5: s_max(P, ω_j) for the 8 directions of eq. (5.28),
 τ (eq. 5.5 estimated as in sec. 5.6), then per-leaf E_direct and E_scattered
-(eqs. 5.7–5.8, 5.11, 5.24–5.26, 5.33) for the scene's sun.
+(eqs. 5.7–5.8, 5.11, 5.24–5.26, 5.33) for the scene's sun; by default the
+scattered light lights its scatterers by the leaves' exact lit fractions and
+counts every order (``--scatter leaves``; :mod:`foliage_tools.lighting.boulanger`).
 """
 
 from __future__ import annotations
@@ -14,12 +16,12 @@ import numpy as np
 
 from foliage_tools import __version__
 from foliage_tools.geometry.sun import Sun, to_prototype_space
-from foliage_tools.lighting import boulanger, envelope
+from foliage_tools.lighting import boulanger, envelope, scatterer_sun
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
-from foliage_tools.pipeline.world import bake_world
-from foliage_tools.pipeline.direct import DirectChoice, bake_direct
+from foliage_tools.pipeline.world import bake_world, prototype_means
+from foliage_tools.pipeline.direct import DirectBake, DirectChoice, bake_direct
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
@@ -28,6 +30,9 @@ from foliage_tools.scene.schemas import ENVELOPE_API
 from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
 
 PATHS = ("auto", "reference", "fast")
+#: ``--scatter``: ``leaves`` lights the scatterers by the leaves' exact lit fractions and adds the higher orders
+#: (lighting.scatterer_sun, boulanger.higher_orders); ``paper`` is boulanger2008's one bounce, eq. (5.24).
+SCATTER = ("leaves", "paper")
 
 
 @dataclass(frozen=True)
@@ -43,12 +48,21 @@ class SmaxParams:
     (reference below envelope.EnvelopeParams.auto_threshold leaves)."""
     direct: DirectChoice = DirectChoice()
     """``--direct``: what ``primvars:foliage:smax:direct`` holds (exact shadow rays by default, or eq. 5.7's own)."""
+    scatter: str = "leaves"
+    """``--scatter``: see :data:`SCATTER`."""
 
     def __post_init__(self) -> None:
-        if self.path not in PATHS:
-            from foliage_tools.errors import UsageError
+        from foliage_tools.errors import UsageError
 
+        if self.path not in PATHS:
             raise UsageError(f"--path must be one of {', '.join(PATHS)}, got {self.path!r}.")
+        if self.scatter not in SCATTER:
+            raise UsageError(f"--scatter must be one of {', '.join(SCATTER)}, got {self.scatter!r}.")
+
+    @property
+    def needs_rays(self) -> bool:
+        """Whether the bake traces the exact direct light (for its E_direct or for its scattered light)."""
+        return self.direct.mode == "rays" or self.scatter == "leaves"
 
 
 @dataclass(frozen=True)
@@ -66,9 +80,23 @@ def sky_radiance(scene: Scene) -> tuple[float, float, float]:
     return tuple(float(domes[0].intensity * c) for c in domes[0].color) if domes else (0.0, 0.0, 0.0)
 
 
-def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], progress: Progress) -> list[SmaxBake]:
-    """Envelope and lighting of every prototype with leaves (pure numerics on the scene's arrays)."""
+def lit_fractions(scene: Scene, exact: DirectBake) -> list[np.ndarray]:
+    """Per prototype, each leaf's exact transmission toward the sun (its lit fraction), the mean over its instances."""
+    counts = [p.leaves.count for p in scene.prototypes]
+    return prototype_means(exact.world, exact.result.lit_fraction, len(counts), counts)
+
+
+def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], progress: Progress,
+              exact: DirectBake | None = None) -> list[SmaxBake]:
+    """Envelope and lighting of every prototype with leaves (pure numerics on the scene's arrays).
+
+    ``exact``: the exact direct light of this scene and sun, traced here when ``--scatter leaves`` needs it and
+    none is given."""
     sky = sky_radiance(scene)
+    lit = None
+    if params.scatter == "leaves":
+        exact = exact if exact is not None else bake_direct(scene, sun, params.direct, progress)
+        lit = lit_fractions(scene, exact)
     baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
     progress.step(f"s_max for {len(baked)} prototype(s)", total=len(baked))
     out = []
@@ -79,6 +107,9 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
         env = envelope.solve(
             proto.leaves.centers, proto.leaves.normals, proto.leaves.areas, up=up_local, params=envelope.EnvelopeParams(path=params.path)
         )
+        t_bar = None if lit is None else scatterer_sun.scatterer_transmission(
+            proto.leaves.centers, np.clip(lit[i], 0.0, 1.0), env.tau, up=up_local,
+            leaf_size=float(np.sqrt(np.mean(proto.leaves.areas))))
         light = boulanger.solve(
             proto.leaves.normals,
             env.smax,
@@ -90,6 +121,8 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
                 transmittance=tuple(params.optics.transmittance),
                 sky_radiance=sky,
             ),
+            scatterer_sun=t_bar,
+            all_orders=lit is not None,
         )
         progress.advance()
         out.append(SmaxBake(i, env, light))
@@ -101,8 +134,9 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
     report, scene, sun = begin_bake("smax", path, out, params.sun, progress)
     edits = LayerEdits()
     protos = []
-    bakes = bake_smax(scene, sun, params, report.warnings, progress)
-    exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
+    traced = bake_direct(scene, sun, params.direct, progress) if params.needs_rays else None
+    bakes = bake_smax(scene, sun, params, report.warnings, progress, exact=traced)
+    exact = traced if params.direct.mode == "rays" else None
     for bake in bakes:
         proto, env, light = scene.prototypes[bake.index], bake.envelope, bake.lighting
         e_direct = exact.per_prototype[bake.index] if exact else light.e_direct
@@ -142,6 +176,8 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
                 "e_direct_volume_mean": np.mean(light.e_direct, axis=0).tolist(),
                 "e_scattered_mean": np.mean(light.e_scattered, axis=0).tolist(),
                 "seconds": float(env.seconds + light.seconds),
+                "scatter": params.scatter,
+                "recollision_probability": light.stats["recollision_probability"],
             }
         )
     world = exact.world if exact else bake_world(scene)

@@ -146,3 +146,49 @@ def test_generated_40k_leaf_tree_uses_the_fast_path(tmp_path):
     write_tree(tmp_path / "t40k.usdc", geo)
     report = run_smax(tmp_path / "t40k.usdc", tmp_path / "o.usda", SmaxParams(optics=parse_leaf_optics(None)))
     assert report.stats["leaves"] == 40000 and report.stats["path"] == "fast"
+
+
+def test_scattered_light_against_the_reference_and_the_papers_own(smax_out, tmp_path):
+    """The default (--scatter leaves) against the Monte Carlo reference on the example, crown means: within 12 %,
+    the budget of the ball test in tests/unit/test_smax_scatter.py (the 8 octant bins over a crown); measured
+    1.00 here (0.90 on the oak, 1.05 on the sapling). --scatter paper is the thesis' eq. (5.24) exactly, recomputed
+    from the written s_max and tau, and reads 0.84 of the reference here."""
+    from pxr import Usd, UsdGeom
+
+    from foliage_tools.lighting import boulanger
+    from foliage_tools.pipeline.reference import ReferenceParams, bake_reference
+    from foliage_tools.pipeline.report import Silent
+    from foliage_tools.pipeline.stage import begin_bake
+
+    out, report = smax_out
+    assert report.stats["prototypes"][0]["scatter"] == "leaves"
+    optics = parse_leaf_optics(None)
+    paper = run_smax(EXAMPLE, tmp_path / "p.usda", SmaxParams(optics=optics, scatter="paper", sun=(45.0, 60.0)))
+    assert paper.stats["prototypes"][0]["scatter"] == "paper"
+    _, scene, sun = begin_bake("bench", EXAMPLE, None, (45.0, 60.0), Silent())
+    ref = bake_reference(scene, sun, ReferenceParams(optics=optics, paths=2_000_000, seed=0), Silent()).result
+    leaves = scene.prototypes[0].leaves
+
+    def per_leaf(path, name):
+        stage = Usd.Stage.Open(str(path))  # kept alive while its prims are read
+        values = np.asarray(UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Tree/Leaves")).GetPrimvar(name).Get(),
+                            dtype=np.float64)
+        mesh_index = next(i for i, m in enumerate(scene.prototypes[0].meshes) if m.path == "/Tree/Leaves")
+        ids = leaves.face_leaf_ids[mesh_index]
+        if values.ndim == 1 and values.size != len(ids):  # elementSize 8
+            values = values.reshape(len(ids), -1)
+        per = np.zeros((leaves.count,) + values.shape[1:])
+        per[ids[ids >= 0]] = values[ids >= 0]
+        return per
+
+    ours = per_leaf(out, "foliage:smax:scattered")[:, 1]
+    assert abs(ours.mean() / ref.e_scattered[:, 1].mean() - 1.0) <= 0.12
+    written = per_leaf(tmp_path / "p.usda", "foliage:smax:scattered")
+    paper_stage = Usd.Stage.Open(str(tmp_path / "p.usda"))
+    tau = paper_stage.GetPrimAtPath("/Tree").GetAttribute("foliage:tau").Get()
+    again = boulanger.solve(leaves.normals, per_leaf(tmp_path / "p.usda", "foliage:smax").reshape(-1, 8), tau,
+                            params=boulanger.BoulangerParams(sun_direction=tuple(sun.direction),
+                                                             reflectance=tuple(optics.reflectance),
+                                                             transmittance=tuple(optics.transmittance)))
+    np.testing.assert_allclose(written, again.e_scattered, rtol=2e-4, atol=1e-7)
+    assert written[:, 1].mean() / ref.e_scattered[:, 1].mean() < 0.9
