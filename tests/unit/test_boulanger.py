@@ -525,12 +525,15 @@ def test_direct_sun_is_beer_lambert_over_the_interpolated_smax():
             np.testing.assert_allclose(r.e_direct[:, 1], expected, rtol=1e-6, atol=1e-12)
 
 
-def test_mirror_symmetric_crown_under_a_zenith_sun_gives_mirror_symmetric_light():
+@pytest.mark.parametrize("scatter", ["paper", "leaves"])
+def test_mirror_symmetric_crown_under_a_zenith_sun_gives_mirror_symmetric_light(scatter):
     """DESIGN.md section 4: a symmetric tree under a zenith sun gives a symmetric field.
 
     A ball of leaves plus its mirror image in x -> -x (normals mirrored too), the
     paper's reference path for s_max: the mirrored leaf's s_max are the original's
-    in the mirrored directions, and every irradiance is the same.
+    in the mirrored directions, and every irradiance is the same -- with eq. (5.24)
+    and with the scatterers lit by a mirror-symmetric lit fraction (lighting.scatterer_sun)
+    and every order counted.
     """
     rng = np.random.default_rng(1)
     n = 300
@@ -544,8 +547,14 @@ def test_mirror_symmetric_crown_under_a_zenith_sun_gives_mirror_symmetric_light(
     mirrored = [int(np.argmax(DIRS @ (d * flip))) for d in DIRS]
     assert sorted(mirrored) == list(range(8))
     np.testing.assert_allclose(env.smax[n:][:, mirrored], env.smax[:n], rtol=1e-5, atol=1e-7)
+    t_bar = None
+    if scatter == "leaves":
+        from foliage_tools.lighting.scatterer_sun import scatterer_transmission
+
+        t_bar = scatterer_transmission(centres, np.exp(-(1.0 - centres[:, 2])), env.tau, up=UP, leaf_size=0.1)
     r = solve(normals, env.smax, env.tau, up=UP, params=BoulangerParams(
-        sun_direction=(0.0, 0.0, 1.0), reflectance=0.3, transmittance=0.4, sky_radiance=0.2, ground_reflectance=0.1))
+        sun_direction=(0.0, 0.0, 1.0), reflectance=0.3, transmittance=0.4, sky_radiance=0.2, ground_reflectance=0.1),
+        scatterer_sun=t_bar, all_orders=t_bar is not None)
     for name in ("e_direct", "e_scattered", "e_sky"):
         x = getattr(r, name).astype(float)
         assert np.abs(x).max() > 0

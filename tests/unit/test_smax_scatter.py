@@ -92,6 +92,18 @@ def test_hard_cases_are_finite():
         scatterer_transmission(np.zeros((2, 3)), np.array([0.5, 0.5]), math.nan, leaf_size=0.1)
 
 
+def test_no_leaves_between_is_pass_through():
+    """DESIGN.md section 4, pass-through at density 0: τ = 0 scatters nothing, finite, with lit scatterers."""
+    nrm = np.tile([0.0, 0.0, 1.0], (3, 1))
+    res = bl.solve(nrm, np.ones((3, 8)), 0.0, up=UP, params=bl.BoulangerParams(
+        sun_direction=tuple(SUN), reflectance=0.4, transmittance=0.4), scatterer_sun=np.full((3, 8), 0.5),
+        all_orders=True)
+    assert np.all(res.e_scattered == 0) and np.all(np.isfinite(res.e_direct))
+    with pytest.raises(ValueError):
+        bl.solve(nrm, np.ones((3, 8)), 1.0, up=UP, params=bl.BoulangerParams(
+            sun_direction=tuple(SUN), reflectance=0.4, transmittance=0.4), scatterer_sun=np.full((3, 8), 1.5))
+
+
 def test_higher_orders_series():
     """1/(1 - ω p) is the sum of the orders' geometric series, finite at ω = p = 1."""
     w = np.array([0.1, 0.5, 0.9])
