@@ -96,7 +96,8 @@ def main(argv: list[str]) -> int:
     ref = _instance_light(work / "ref.usda", "ref")
     print("per instance against it (relative RMS over instances; mean ratio):")
     for method in ("smax", "spp", "lb"):
-        mine = _instance_light(work / "bake" / f"{stand.stem}.{method}.usda", method)
+        # bake --layer-format auto writes .usdc for 10k instances
+        mine = _instance_light(next((work / "bake").glob(f"{stand.stem}.{method}.usd[ac]")), method)
         cells = []
         for part in ("direct", "scattered", "total"):
             a, b = mine[part], ref[part]
