@@ -361,12 +361,17 @@ def _define_scopes(stage: Usd.Stage, path: Sdf.Path) -> None:
 def _place(stage: Usd.Stage, class_prim: str, placement: VolumePlacement) -> None:
     """The placing prim of one instance: an internal reference to the class, and the instance's transform.
 
-    Authored whole in every stage's layer (an explicit reference list and a
-    fresh xformOpOrder), so a later stage's placement is this stage's, not a
-    mix with an earlier layer's; the fields, their grids and their ``.vdb``
-    come through the reference, so a later stage's grids reach every placement.
+    The fields, their grids and their ``.vdb`` come through the reference, so
+    a later stage's grids reach every placement without touching it: a
+    placement the input already has, the same (an earlier stage wrote it), is
+    not authored again (16 placements are ~9 kB of ``.usda`` a layer). One
+    that differs (the instances moved since) is authored whole, an explicit
+    reference list and a fresh xformOpOrder, so it is this stage's, not a mix
+    with the earlier layer's.
     """
     path = Sdf.Path(placement.path)
+    if _placed_already(stage, class_prim, placement):
+        return
     _define_scopes(stage, path.GetParentPath())
     prim = stage.DefinePrim(path, "Xform")
     prim.GetReferences().SetReferences([Sdf.Reference(primPath=Sdf.Path(class_prim))])
@@ -374,6 +379,17 @@ def _place(stage: Usd.Stage, class_prim: str, placement: VolumePlacement) -> Non
     op.Set(Gf.Matrix4d(np.asarray(placement.transform, dtype=np.float64).T.tolist()))
     _set_attr(prim, "foliage:instance", placement.instance, "String")
     _mark_custom(prim, prim.GetAttribute("foliage:instance"))
+
+
+def _placed_already(stage: Usd.Stage, class_prim: str, placement: VolumePlacement) -> bool:
+    prim = stage.GetPrimAtPath(placement.path)
+    if not prim or prim.GetAttribute("foliage:instance").Get() != placement.instance:
+        return False
+    arcs = Usd.PrimCompositionQuery.GetDirectReferences(prim).GetCompositionArcs()
+    if [str(a.GetTargetPrimPath()) for a in arcs] != [class_prim]:
+        return False
+    ours = np.asarray(placement.transform, dtype=np.float64).T
+    return np.allclose(np.array(UsdGeom.Xformable(prim).GetLocalTransformation()), ours, rtol=0, atol=1e-12 * max(1.0, np.abs(ours).max()))
 
 
 def _hide_field(asset: UsdVol.OpenVDBAsset) -> None:

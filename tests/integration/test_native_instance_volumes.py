@@ -226,3 +226,32 @@ def test_the_baked_forest_validates(baked):
     _, _, final, _ = baked
     r = foliage("validate", final)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_a_later_stage_authors_only_the_placements_that_changed(tmp_path):
+    """A stage over an earlier bake leaves the placements it would write the same alone (the reference brings the new
+    grids), and re-authors, whole, the one of an instance that moved in between."""
+    from pxr import Gf, Sdf, Usd, UsdGeom
+
+    forest = _forest(tmp_path / "in")
+    run_density(forest, tmp_path / "a.usda", DensityParams(resolution=RESOLUTION))
+    moved = tmp_path / "moved.usda"
+    layer = Sdf.Layer.CreateNew(str(moved))
+    layer.subLayerPaths.append("./a.usda")
+    layer.defaultPrim = "World"
+    layer.Save()
+    stage = Usd.Stage.Open(str(moved))
+    UsdGeom.Xformable(stage.GetPrimAtPath("/World/Trees/Tree_01")).GetOrderedXformOps()[0].Set(Gf.Vec3d(3.0, -5.0, 0.0))
+    stage.GetRootLayer().Save()
+    run_density(moved, tmp_path / "b.usda", DensityParams(resolution=RESOLUTION))
+    authored = Sdf.Layer.FindOrOpen(str(tmp_path / "b.usda"))
+    instances = authored.GetPrimAtPath("/World/FoliageBakes/Instances")
+    assert [p.name for p in instances.nameChildren] == ["Trees_Tree_01"]
+    result = Usd.Stage.Open(str(tmp_path / "b.usda"))
+    volumes = _placed_volumes(result)
+    leaves = _leaf_points_per_instance(result)
+    cache = UsdGeom.BBoxCache(Usd.TimeCode.Default(), [UsdGeom.Tokens.default_])
+    for inst in ("/World/Trees/Tree_01", "/World/Trees/Tree_02"):
+        r = cache.ComputeWorldBound(volumes[inst]).ComputeAlignedRange()
+        lo, hi = np.array(r.GetMin()), np.array(r.GetMax())
+        assert np.all(leaves[inst] >= lo - 1e-4) and np.all(leaves[inst] <= hi + 1e-4), inst
