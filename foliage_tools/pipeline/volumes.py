@@ -11,8 +11,9 @@ authored once, in prototype space, inside a USD ``class``
 
     <defaultPrim>/FoliageBakes/Prototypes/<name>/FoliageLighting
 
-which no DCC draws (class prims are abstract: usdview, Blender and Houdini
-skip them), and each instance of the prototype -- native instances, and the
+which is not drawn (a class prim is abstract: USD's default traversal and
+Hydra skip it; Blender 5.0.1 does not import it, measured in
+tests/integration/test_blender_roundtrip.py), and each instance of the prototype -- native instances, and the
 point-instanced copies of an instanceable prototype -- gets a prim
 
     <defaultPrim>/FoliageBakes/Instances/<instance>      (references the class)
@@ -27,9 +28,9 @@ lands over that tree. Why this shape:
 * everything under the default prim, so a DCC that imports the default prim
   (or references the bake into a shot) gets the volumes, and the world-space
   ``FoliageForest`` volume beside them (``pipeline.forest``);
-* plain references, not ``instanceable`` placements: every DCC reads a
-  referenced prim, not every DCC imports instanced volumes; a placement costs
-  a handful of opinions, not a copy of the grids.
+* plain references, not ``instanceable`` placements: every DCC composes a
+  referenced prim, while instanced volumes are not known to import
+  everywhere; a placement costs a handful of opinions, not a copy of the grids.
 """
 
 from __future__ import annotations

@@ -66,8 +66,9 @@ class VolumeEdit:
     transform: np.ndarray | None = None
     """(4, 4) parent-from-volume matrix (column-vector convention) authored as the volume's xform; None: none."""
     class_prim: str | None = None
-    """An ancestor of ``path`` authored as a USD ``class`` (an abstract Xform): the volume is then a prototype that
-    no DCC draws where it is authored, and ``placements`` reference it; None: the volume is an ordinary prim."""
+    """An ancestor of ``path`` authored as a USD ``class`` (an abstract Xform): the volume is then a prototype,
+    not drawn where it is authored (abstract prims are not traversed by default), that ``placements`` reference;
+    None: the volume is an ordinary prim."""
     placements: tuple[VolumePlacement, ...] = ()
     """Prims that reference ``class_prim`` (an internal reference) with their own transform: each shows the volume
     over one instance, sharing its fields and ``.vdb`` file."""
@@ -75,8 +76,9 @@ class VolumeEdit:
     def __post_init__(self) -> None:
         if self.purpose not in VOLUME_PURPOSES:
             raise ValueError(f"volume purpose must be one of {', '.join(VOLUME_PURPOSES)}, got {self.purpose!r}")
-        if self.class_prim is not None and not Sdf.Path(self.path).HasPrefix(Sdf.Path(self.class_prim)):
-            raise ValueError(f"class_prim <{self.class_prim}> must be the volume <{self.path}> or one of its ancestors")
+        inside = self.class_prim is not None and Sdf.Path(self.path).HasPrefix(Sdf.Path(self.class_prim))
+        if self.class_prim is not None and (self.class_prim == self.path or not inside):
+            raise ValueError(f"class_prim <{self.class_prim}> must be an ancestor of the volume <{self.path}>")
         if self.placements and self.class_prim is None:
             raise ValueError(f"the volume <{self.path}> has placements but no class_prim for them to reference")
 
@@ -388,8 +390,10 @@ def _placed_already(stage: Usd.Stage, class_prim: str, placement: VolumePlacemen
     arcs = Usd.PrimCompositionQuery.GetDirectReferences(prim).GetCompositionArcs()
     if [str(a.GetTargetPrimPath()) for a in arcs] != [class_prim]:
         return False
+    # the same matrix up to the round trip through the layer's text (17 significant digits: exact)
     ours = np.asarray(placement.transform, dtype=np.float64).T
-    return np.allclose(np.array(UsdGeom.Xformable(prim).GetLocalTransformation()), ours, rtol=0, atol=1e-12 * max(1.0, np.abs(ours).max()))
+    theirs = np.array(UsdGeom.Xformable(prim).GetLocalTransformation())
+    return np.allclose(theirs, ours, rtol=0, atol=1e-12 * max(1.0, float(np.abs(ours).max())))
 
 
 def _hide_field(asset: UsdVol.OpenVDBAsset) -> None:
