@@ -19,7 +19,8 @@ from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.vdb import Grid
-from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, check_output_path, stage_metadata, write_layer
+from foliage_tools.pipeline.volumes import bakes_root, class_path, prototype_volume, volume_path
+from foliage_tools.scene.write import LayerEdits, PrimvarEdit, check_output_path, stage_metadata, write_layer
 
 
 #: Largest grid a density bake will allocate (float64 work arrays: 8 bytes × 3 per voxel).
@@ -78,7 +79,7 @@ def compute_density(proto: Prototype, params: DensityParams) -> DensityResult:
     return DensityResult(grid, density, wood_fraction, mesh_area, grid_area, time.perf_counter() - t0)
 
 
-def density_for_bake(path: Path | str, proto: Prototype, params: DensityParams, warnings: list[str]) -> DensityResult:
+def density_for_bake(scene: Scene, proto: Prototype, params: DensityParams, warnings: list[str]) -> DensityResult:
     """The leaf-area density a bake stage needs: the input's own grids when an earlier stage wrote them, else voxelized.
 
     DESIGN.md section 3: a bake reuses the density an earlier stage wrote. It
@@ -91,7 +92,7 @@ def density_for_bake(path: Path | str, proto: Prototype, params: DensityParams, 
     """
     grid = density_grid(proto, params)
     t0 = time.perf_counter()
-    found, why = _stored_density(Path(path), proto, grid)
+    found, why = _stored_density(Path(scene.path), volume_path(scene, proto), grid)
     if found is not None:
         density, wood = found
         return DensityResult(grid, density, wood, float(proto.leaves.areas.sum()), float(density.sum() * grid.voxel_volume),
@@ -102,7 +103,7 @@ def density_for_bake(path: Path | str, proto: Prototype, params: DensityParams, 
     return compute_density(proto, params)
 
 
-def _stored_density(path: Path, proto: Prototype, grid: GridSpec) -> tuple[tuple[np.ndarray, np.ndarray] | None, str | None]:
+def _stored_density(path: Path, volume_at: str, grid: GridSpec) -> tuple[tuple[np.ndarray, np.ndarray] | None, str | None]:
     """(density, wood fraction) on ``grid`` from the input's FoliageLighting volume; (None, reason) or (None, None) if it has none."""
     from pxr import UsdVol
 
@@ -112,7 +113,7 @@ def _stored_density(path: Path, proto: Prototype, grid: GridSpec) -> tuple[tuple
     if not any(f.suffix == ".vdb" for f in input_files(path)) and not any(u.endswith(".vdb") for u in missing_inputs(path)):
         return None, None  # a raw asset: no grids to reuse (present or missing), no need to compose the stage
     stage = _stage_of(path)
-    volume = UsdVol.Volume(stage.GetPrimAtPath(volume_path(proto)))
+    volume = UsdVol.Volume(stage.GetPrimAtPath(volume_at))
     if not volume:
         return None, None
     fields = volume.GetFieldPaths()
@@ -158,18 +159,6 @@ def _open_stage(path: str, _mtime: int):
     return Usd.Stage.Open(path)
 
 
-def volume_path(proto: Prototype) -> str:
-    """Where a prototype's FoliageLighting volume goes (DESIGN.md section 3).
-
-    Native-instance prototypes live in a referenced layer whose prims cannot
-    take overs, so their volume goes under ``/FoliageBakes/<name>`` in
-    prototype space.
-    """
-    if proto.editable:
-        return f"{proto.path}/FoliageLighting"
-    return f"/FoliageBakes/{re.sub(r'[^A-Za-z0-9_]', '_', proto.name)}/FoliageLighting"
-
-
 #: The area method conserves leaf area to float32 round-off (~1e-7); more lost than this is a grid that does not fit.
 AREA_WARN = 1e-3
 
@@ -197,7 +186,10 @@ def leaf_id_edits(scene: Scene, warnings: list[str]) -> list[PrimvarEdit]:
     edits = []
     for proto in scene.prototypes:
         if not proto.editable and proto.leaves.count:
-            warnings.append(native_instance_warning(proto, "primvars:foliage:leafId") + " Its grids are under /FoliageBakes.")
+            n = len(scene.instances_of(scene.prototypes.index(proto)))
+            warnings.append(native_instance_warning(proto, "primvars:foliage:leafId") + (
+                f" Its grids are in the class <{class_path(scene, proto)}>, placed over each of its {n} instance(s) "
+                f"under <{bakes_root(scene)}/Instances>."))
             continue
         for mesh, ids in zip(proto.meshes, proto.leaves.face_leaf_ids):
             if mesh.is_leaf:
@@ -238,8 +230,8 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
             Grid("density", res.density.astype(np.float32), tuple(res.grid.origin), res.grid.voxel_size, grid_meta),
             Grid("woodFraction", res.wood_fraction.astype(np.float32), tuple(res.grid.origin), res.grid.voxel_size, {"units": "fraction"}),
         )
-        edits.volumes.append(VolumeEdit(path=volume_path(proto), vdb_file=vdb_path(out, scene, i), grids=grids, attributes=meta,
-                                        purpose=params.volume_purpose))
+        edits.volumes.append(prototype_volume(scene, i, vdb_file=vdb_path(out, scene, i), grids=grids, attributes=meta,
+                                              purpose=params.volume_purpose))
         rel_err = abs(res.leaf_area_grid - res.leaf_area_mesh) / res.leaf_area_mesh if params.method == "area" else None
         if (rel_err is not None and rel_err > AREA_WARN) or not np.any(res.density):
             size = float(np.ptp(proto.leaves.centers, axis=0).max()) if proto.leaves.count else 0.0
@@ -251,7 +243,7 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
         protos.append(
             {
                 "path": proto.path,
-                "volume": volume_path(proto),
+                "volume": volume_path(scene, proto),
                 "leaves": proto.leaves.count,
                 "shape": list(res.grid.shape),
                 "voxel_size": res.grid.voxel_size,

@@ -47,7 +47,7 @@ from foliage_tools.lighting.collision import LATTICES, PHASES, Medium, brown, de
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.lighting.storage import STORAGES
 from foliage_tools.params import DensityParams
-from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path, volume_path
+from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path
 from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.gather import bake_gather, check_gather
@@ -55,10 +55,11 @@ from foliage_tools.pipeline.instances import bake_instance_edits, from_prototype
 from foliage_tools.pipeline.world import bake_world
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
 from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.pipeline.volumes import prototype_volume, volume_path
 from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.vdb import Grid
-from foliage_tools.scene.write import LayerEdits, PrimvarEdit, VolumeEdit, stage_metadata, write_layer
+from foliage_tools.scene.write import LayerEdits, PrimvarEdit, stage_metadata, write_layer
 
 BASES = ("sun", "all")
 #: How the sun enters a ``--bases sun`` bake (lighting.lb): ``first-collision`` (the exactly attenuated sun
@@ -265,7 +266,7 @@ def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], p
     out = []
     for i, proto in baked:
         sun_local = sun_in_prototype(scene, i, sun, warnings)
-        dens = density_for_bake(scene.path, proto, DensityParams(resolution=params.resolution, method="area"), warnings)
+        dens = density_for_bake(scene, proto, DensityParams(resolution=params.resolution, method="area"), warnings)
         out.append(bake_prototype(proto, i, sun_local, params, dens))
         progress.advance()
     return out
@@ -321,9 +322,9 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "foliage:lb:g": tuple(float(v) for v in bake.medium.g),
             "foliage:lb:absorptionScale": float(params.absorption_scale),
         }
-        vol = volume_path(proto)
-        edits.volumes.append(VolumeEdit(path=vol, vdb_file=vdb_path(out, scene, bake.index), grids=tuple(grids), attributes=attrs,
-                                        purpose=params.volume_purpose))
+        vol = volume_path(scene, proto)
+        edits.volumes.append(prototype_volume(scene, bake.index, vdb_file=vdb_path(out, scene, bake.index), grids=tuple(grids),
+                                              attributes=attrs, purpose=params.volume_purpose))
         if not proto.editable:
             report.warnings.append(native_instance_warning(proto, "LB primvars"))
         if gathered:

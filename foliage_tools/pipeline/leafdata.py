@@ -55,7 +55,8 @@ def vertex_primvar_edits(proto: Prototype, name: str, per_leaf: np.ndarray, *, t
 def native_instance_warning(proto: Prototype, what: str) -> str:
     return (
         f"prototype <{proto.path}> is a native instance: {what} cannot be authored on its meshes "
-        "(they live in a referenced layer); make the prototype editable (not instanceable) to store them."
+        "(below an instanceable prim they are instance proxies, which USD keeps read-only); make the prototype "
+        "editable (not instanceable) to store them."
     )
 
 

@@ -287,7 +287,7 @@ def load_lb_bases(path: Path, scene: Scene, warnings: list[str]) -> dict[str, np
     from foliage_tools.geometry.voxelize import GridSpec, area_per_voxel
     from foliage_tools.lighting import lb as lbm
     from foliage_tools.lighting.collision import Medium, density_from_lad
-    from foliage_tools.pipeline.density import volume_path
+    from foliage_tools.pipeline.volumes import volume_path
     from foliage_tools.pipeline.lb import sample_trilinear
     from foliage_tools.scene.primvars import read_volume
     from foliage_tools.scene.vdb import read_grid
@@ -297,7 +297,7 @@ def load_lb_bases(path: Path, scene: Scene, warnings: list[str]) -> dict[str, np
         leaf_parts = [m for m in proto.meshes if m.is_leaf and len(m.triangles)]
         if not leaf_parts:
             continue
-        vol = volume_path(proto)
+        vol = volume_path(scene, proto)
         names = [f"lbBase{k:02d}" for k in range(1, 19)]
         found, attrs = read_volume(path, vol, names, [f"foliage:lb:{n}" for n in ("sigmaA", "sigmaS", "g")])
         files = [found[n] for n in names]

@@ -55,7 +55,7 @@ from foliage_tools.lighting import gfactor as gf
 from foliage_tools.lighting import raydepth as rd
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
-from foliage_tools.pipeline.density import DensityResult, density_for_bake, vdb_path, volume_path
+from foliage_tools.pipeline.density import DensityResult, density_for_bake, vdb_path
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.gather import bake_gather, check_gather
 from foliage_tools.pipeline.forest import forest_light
@@ -64,9 +64,10 @@ from foliage_tools.pipeline.world import bake_world
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
+from foliage_tools.pipeline.volumes import prototype_volume
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.vdb import Grid
-from foliage_tools.scene.write import LayerEdits, VolumeEdit, stage_metadata, write_layer
+from foliage_tools.scene.write import LayerEdits, stage_metadata, write_layer
 
 #: Embree threads of the ray path (results are identical for any number).
 _WORKERS = os.cpu_count() or 1
@@ -359,7 +360,7 @@ def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], pro
             f"~{need / 1e9:,.1f} GB ({SPP_BYTES_PER_LEAF_DIRECTION / 1e3:.1f} kB per leaf and direction), "
             f"{free / 1e9:.1f} GB is available. Use fewer directions (the paper uses 16-64; the default is 16).")
     progress.step(f"SPP/SPPG for {len(baked)} prototype(s), {params.depth} depths", total=len(baked))
-    densities = {i: density_for_bake(scene.path, p, DensityParams(resolution=params.resolution, method="area"), warnings) for i, p in baked}
+    densities = {i: density_for_bake(scene, p, DensityParams(resolution=params.resolution, method="area"), warnings) for i, p in baked}
     neighbours = None
     if 1 < len(scene.instances) <= EQ31_MAX_INSTANCES:
         neighbours = _Neighbours(scene, densities, params, warnings)
@@ -409,8 +410,8 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
             "foliage:resolution": tuple(int(n) for n in bake.grid_depth.shape),
             "foliage:metersPerUnit": float(scene.meters_per_unit), "foliage:seconds": float(bake.seconds), "foliage:version": __version__,
         }
-        edits.volumes.append(VolumeEdit(path=volume_path(proto), vdb_file=vdb_path(out, scene, bake.index), grids=grids, attributes=attrs,
-                                        purpose=params.volume_purpose))
+        edits.volumes.append(prototype_volume(scene, bake.index, vdb_file=vdb_path(out, scene, bake.index), grids=grids,
+                                              attributes=attrs, purpose=params.volume_purpose))
         if not proto.editable:
             report.warnings.append(native_instance_warning(proto, "SPP primvars"))
         methods = {"spp": res.spp, "ss": res.ss}

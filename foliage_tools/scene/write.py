@@ -65,10 +65,34 @@ class VolumeEdit:
     """The volume's purpose (``--volume-purpose``): ``default`` (DCCs import it and renderers draw it) or ``guide``."""
     transform: np.ndarray | None = None
     """(4, 4) parent-from-volume matrix (column-vector convention) authored as the volume's xform; None: none."""
+    class_prim: str | None = None
+    """An ancestor of ``path`` authored as a USD ``class`` (an abstract Xform): the volume is then a prototype,
+    not drawn where it is authored (abstract prims are not traversed by default), that ``placements`` reference;
+    None: the volume is an ordinary prim."""
+    placements: tuple[VolumePlacement, ...] = ()
+    """Prims that reference ``class_prim`` (an internal reference) with their own transform: each shows the volume
+    over one instance, sharing its fields and ``.vdb`` file."""
 
     def __post_init__(self) -> None:
         if self.purpose not in VOLUME_PURPOSES:
             raise ValueError(f"volume purpose must be one of {', '.join(VOLUME_PURPOSES)}, got {self.purpose!r}")
+        inside = self.class_prim is not None and Sdf.Path(self.path).HasPrefix(Sdf.Path(self.class_prim))
+        if self.class_prim is not None and (self.class_prim == self.path or not inside):
+            raise ValueError(f"class_prim <{self.class_prim}> must be an ancestor of the volume <{self.path}>")
+        if self.placements and self.class_prim is None:
+            raise ValueError(f"the volume <{self.path}> has placements but no class_prim for them to reference")
+
+
+@dataclass(frozen=True)
+class VolumePlacement:
+    """One placed copy of a ``VolumeEdit``'s class: a prim that references it, over one instance."""
+
+    path: str
+    """Prim path of the placing prim (an Xform; the volume lands at ``path`` + the volume's path below the class)."""
+    transform: np.ndarray
+    """(4, 4) parent-from-prototype matrix (column-vector convention), authored as the prim's one xformOp."""
+    instance: str
+    """The instance it lies over (a prim path, or ``<instancer>[i]``), authored as ``foliage:instance``."""
 
 
 @dataclass(frozen=True)
@@ -286,6 +310,10 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path, carried: dict[str, l
             values = values.astype(np.float32)
         primvar.Set(vt.FromNumpy(values))
     for vol in edits.volumes:
+        if vol.class_prim is not None:  # first, so the volume's Define finds a defined ancestor and adds no `def` for it
+            _define_scopes(stage, Sdf.Path(vol.class_prim).GetParentPath())
+            cls = stage.DefinePrim(vol.class_prim, "Xform")
+            cls.SetSpecifier(Sdf.SpecifierClass)
         volume = UsdVol.Volume.Define(stage, vol.path)
         # purpose default unless --volume-purpose guide (issue #17): DCCs import and renderers draw only
         # default/render purpose by default (Blender 5.0 skipped the volume when it was a guide)
@@ -314,6 +342,8 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path, carried: dict[str, l
         # each field carries the metadata of the stage that wrote its grid, which nothing overrides
         for prim in [volume.GetPrim(), *fields]:
             _apply_lighting_metadata(prim, vol.attributes)
+        for placement in vol.placements:
+            _place(stage, vol.class_prim, placement)
     for edit in edits.attributes:
         prim = stage.OverridePrim(edit.prim)
         if edit.api:
@@ -321,6 +351,49 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path, carried: dict[str, l
         for name, (value, type_name) in edit.values.items():
             _set_attr(prim, name, value, type_name)
             _mark_custom(prim, prim.GetAttribute(name))
+
+
+def _define_scopes(stage: Usd.Stage, path: Sdf.Path) -> None:
+    """``path`` and its ancestors as ``Scope`` where the stage has no prim yet (no transform, nothing drawn)."""
+    for p in path.GetPrefixes():
+        if not stage.GetPrimAtPath(p):
+            UsdGeom.Scope.Define(stage, p)
+
+
+def _place(stage: Usd.Stage, class_prim: str, placement: VolumePlacement) -> None:
+    """The placing prim of one instance: an internal reference to the class, and the instance's transform.
+
+    The fields, their grids and their ``.vdb`` come through the reference, so
+    a later stage's grids reach every placement without touching it: a
+    placement the input already has, the same (an earlier stage wrote it), is
+    not authored again (16 placements are ~9 kB of ``.usda`` a layer). One
+    that differs (the instances moved since) is authored whole, an explicit
+    reference list and a fresh xformOpOrder, so it is this stage's, not a mix
+    with the earlier layer's.
+    """
+    path = Sdf.Path(placement.path)
+    if _placed_already(stage, class_prim, placement):
+        return
+    _define_scopes(stage, path.GetParentPath())
+    prim = stage.DefinePrim(path, "Xform")
+    prim.GetReferences().SetReferences([Sdf.Reference(primPath=Sdf.Path(class_prim))])
+    op = UsdGeom.Xformable(prim).MakeMatrixXform()  # Gf matrices are row-vector: the transpose of ours
+    op.Set(Gf.Matrix4d(np.asarray(placement.transform, dtype=np.float64).T.tolist()))
+    _set_attr(prim, "foliage:instance", placement.instance, "String")
+    _mark_custom(prim, prim.GetAttribute("foliage:instance"))
+
+
+def _placed_already(stage: Usd.Stage, class_prim: str, placement: VolumePlacement) -> bool:
+    prim = stage.GetPrimAtPath(placement.path)
+    if not prim or prim.GetAttribute("foliage:instance").Get() != placement.instance:
+        return False
+    arcs = Usd.PrimCompositionQuery.GetDirectReferences(prim).GetCompositionArcs()
+    if [str(a.GetTargetPrimPath()) for a in arcs] != [class_prim]:
+        return False
+    # the same matrix up to the round trip through the layer's text (17 significant digits: exact)
+    ours = np.asarray(placement.transform, dtype=np.float64).T
+    theirs = np.array(UsdGeom.Xformable(prim).GetLocalTransformation())
+    return np.allclose(theirs, ours, rtol=0, atol=1e-12 * max(1.0, float(np.abs(ours).max())))
 
 
 def _hide_field(asset: UsdVol.OpenVDBAsset) -> None:

@@ -9,6 +9,7 @@ import json
 import sys
 
 import bpy
+import mathutils
 
 
 def _plain(value):
@@ -22,9 +23,12 @@ def _plain(value):
 def main(path: str) -> None:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.wm.usd_import(filepath=path)  # Blender's defaults: no guide/proxy purposes, custom attributes kept
+    bpy.context.view_layer.update()  # parented objects' matrix_world is evaluated, not set by the import
     objects = []
     for ob in bpy.data.objects:
-        d = {"name": ob.name, "type": ob.type, "props": {k: _plain(v) for k, v in ob.items()}}
+        d = {"name": ob.name, "type": ob.type, "props": {k: _plain(v) for k, v in ob.items()},
+             "parent": ob.parent.name if ob.parent else None,
+             "matrix_world": [list(row) for row in ob.matrix_world]}
         if ob.type == "VOLUME":
             vol = ob.data
             vol.grids.load()
@@ -33,6 +37,9 @@ def main(path: str) -> None:
                            "matrix": [list(row) for row in g.matrix_object]} for g in vol.grids]
             d["data_props"] = {k: _plain(v) for k, v in vol.items()}
             d["materials"] = [m.name for m in vol.materials if m]
+            # the object's bounding box from its loaded grids (evaluated), in world space
+            evaluated = ob.evaluated_get(bpy.context.evaluated_depsgraph_get())
+            d["world_bound_box"] = [list(ob.matrix_world @ mathutils.Vector(c)) for c in evaluated.bound_box]
         elif ob.type == "MESH":
             mesh = ob.data
             d["faces"] = len(mesh.polygons)

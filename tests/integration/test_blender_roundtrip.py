@@ -112,3 +112,55 @@ def test_the_bake_metadata_arrives_as_custom_properties(blender_import):
     assert np.isclose(tree["foliage:tau"], stage.GetPrimAtPath("/Tree").GetAttribute("foliage:tau").Get(), rtol=1e-6)
     assert tree["foliage:smax:path"] in ("reference", "fast")
     assert np.allclose(tree["foliage:lb:sunDirection"], stage.GetPrimAtPath("/Tree").GetAttribute("foliage:lb:sunDirection").Get())
+
+
+@pytest.fixture(scope="module")
+def blender_forest(tmp_path_factory):
+    """The bundled forest (4 native instances, 12 point-instanced copies of one instanceable tree) under a moved and
+    turned default prim, baked (density, lb) and imported into Blender."""
+    from tests.integration.test_native_instance_volumes import _bake, _forest
+
+    python = bpy_python()
+    if python is None:
+        pytest.skip("no Blender Python: `make setup-bpy` (a venv with `pip install bpy` at .venv-bpy), or set "
+                    "FOLIAGE_BPY_PYTHON to the python of a venv that has bpy")
+    work = tmp_path_factory.mktemp("blender-forest")
+    final = _bake(_forest(work / "in"), work / "out")
+    r = subprocess.run([str(python), str(PROBE), str(final)], capture_output=True, text=True, timeout=300,
+                       cwd=tmp_path_factory.mktemp("blender-cwd"))
+    lines = [line for line in r.stdout.splitlines() if line.startswith("PROBE")]
+    assert r.returncode == 0 and lines, f"Blender probe failed ({python}):\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
+    return final, json.loads(lines[-1][len("PROBE"):])
+
+
+def test_a_native_instance_forest_volume_arrives_over_each_tree(blender_forest):
+    """One Blender volume per instance, each with the prototype's grids from its one file, placed where pxr puts that
+    instance's leaves (computed from the instance prims, not from the bake's placements)."""
+    from pxr import Usd
+
+    from tests.integration.test_native_instance_volumes import _instance_transforms, _leaf_points_per_instance, _placed_volumes
+
+    final, probe = blender_forest
+    stage = Usd.Stage.Open(str(final))
+    leaves, transforms = _leaf_points_per_instance(stage), _instance_transforms(stage)
+    placing = {str(prim.GetParent().GetName()): inst for inst, prim in _placed_volumes(stage).items()}
+    volumes = [o for o in probe["objects"] if o["type"] == "VOLUME" and o["name"].startswith("FoliageLighting")]
+
+    def instance(o):
+        # Blender merges an Xform with one child into the child (its default "merge parent Xform"): the volume
+        # object then carries the placing prim's transform and its foliage:instance; unmerged, its parent does
+        return o["props"].get("foliage:instance") or placing.get(o["parent"])
+
+    # 16 placed volumes, no prototype-space one at the origin (the class is not imported)
+    assert sorted(map(instance, volumes)) == sorted(leaves), [(o["name"], o["parent"], o["props"]) for o in volumes]
+    for o in volumes:
+        inst = instance(o)
+        assert {g["name"] for g in o["grids"]} == {"density", "woodFraction", "lbSun"}, inst
+        assert Path(o["filepath"]).resolve() == final.with_suffix(".vdb").resolve(), inst
+        # the volume object stands where the instance stands: its world matrix is the instance's world-from-prototype
+        # (Blender's Z-up and metres are the stage's, so no axis or unit conversion comes between)
+        np.testing.assert_allclose(np.asarray(o["matrix_world"]), transforms[inst], atol=1e-5, err_msg=inst)
+        # and its grids' world box (axis-aligned, rounded out to OpenVDB's 8-voxel leaf nodes) holds the leaves
+        box = np.asarray(o["world_bound_box"])
+        lo, hi = box.min(axis=0), box.max(axis=0)
+        assert np.all(leaves[inst] >= lo - 1e-3) and np.all(leaves[inst] <= hi + 1e-3), inst

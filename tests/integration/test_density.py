@@ -151,9 +151,10 @@ def test_forest_bakes_its_shared_prototype_once(tmp_path):
     report = run_density(forest, tmp_path / "f.usda", DensityParams(resolution=16))
     protos = report.stats["prototypes"]
     assert len(protos) == 1 and protos[0]["leaves"] == 1500
-    # a native-instance prototype cannot take overs: its volume goes under /FoliageBakes, with a warning
-    assert protos[0]["volume"].startswith("/FoliageBakes/")
-    assert any("native instance" in w for w in report.warnings)
+    # a native-instance prototype's meshes are instance proxies: its volume goes into a class under the default
+    # prim (placed over every instance: test_native_instance_volumes.py), with a warning saying where
+    assert protos[0]["volume"] == "/World/FoliageBakes/Prototypes/Tree_00/FoliageLighting"
+    assert any("native instance" in w and "placed over each of its 16 instance(s)" in w for w in report.warnings)
     stage = Usd.Stage.Open(str(tmp_path / "f.usda"))
     assert UsdVol.Volume(stage.GetPrimAtPath(protos[0]["volume"]))
     assert foliage("validate", tmp_path / "f.usda").returncode == 0
