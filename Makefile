@@ -8,7 +8,7 @@ EXAMPLE := examples/tree_small.usda
 DEMO    := out/demo
 OAK     := ../shared/assets/webots_oak/oak.usda
 
-.PHONY: setup setup-bpy demo test test-slow bench clean
+.PHONY: setup setup-bpy demo lint test test-slow bench clean
 
 setup: $(STAMP)
 
@@ -23,9 +23,13 @@ demo: setup
 	$(FOLIAGE) validate $(DEMO)/tree_small.lb.usda
 	@echo "demo outputs are in $(DEMO)/: tree_small.lb.usda (the whole bake over the example), .vdb grids, bench.json and bench.png"
 
+# pyflakes, bugbear and no print() in the package ([tool.ruff] in pyproject.toml); part of `make test`
+lint: setup
+	$(PY) -m ruff check foliage_tools cli tests benchmarks examples scripts
+
 # the default suite in TEST_WORKERS processes, whole test files each (module fixtures are built once)
 TEST_WORKERS ?= 2
-test: setup
+test: setup lint
 	$(PY) -m pytest -m "not slow" -q -n $(TEST_WORKERS) --dist loadfile
 
 # Blender as a Python module (bpy, ~350 MB) in its own venv: bpy pins its own Python (3.11 for Blender 5.0)

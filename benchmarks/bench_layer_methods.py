@@ -51,7 +51,6 @@ def main(argv: list[str]) -> int:
     print(f"== {Path(path).name} {optics_s} sun {sun_s}: reference {ref.paths:,} paths, noise {ref.noise_rel:.3f} ({time.perf_counter()-t:.0f} s)", flush=True)
     d = bake_direct(scene, sun, DirectChoice(), Silent(), world=refb.world)
     print(f"  direct (rays, {d.result.samples_per_leaf}/leaf) {d.result.seconds:.1f}s  E_direct bins vs ref {binline(d.result.e_direct, ref.e_direct[:,0])}", flush=True)
-    cache = {}
     for m in methods:
         t = time.perf_counter()
         if m.startswith("spp") or m == "sppg":

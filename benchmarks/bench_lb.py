@@ -92,7 +92,7 @@ def kernel_table(rho: np.ndarray, repeats: int, ref_n: int, density: float) -> N
         ):
             dt = median_seconds(fn, repeats)
             print(f"{mode + ' (' + label + ')':<46}{nrhs:>5}{dt * 1e3:>10.1f}{nodes / dt / 1e6:>13.2f}{nodes * nrhs / dt / 1e6:>18.1f}")
-        del f, out, wt, op
+        f = out = wt = op = None  # free the arrays before the next case
     ref_rho = dense_sphere(ref_n, density)
     for label, bounds in cases:
         pb = LBProblem(ref_rho, leaf_medium(), bounds)

@@ -131,7 +131,7 @@ def kernel_table(repeats: int, bw: float) -> None:
     roof = bw / BYTES_PER_UPDATE / 1e6
     rng = np.random.default_rng(1)
     for n in (64, 128):
-        for label, C, bounds in CASES:
+        for _label, C, bounds in CASES:
             K = len(bounds())
             nrhs = C * K
             shape = (n, n, n)
@@ -152,7 +152,7 @@ def kernel_table(repeats: int, bw: float) -> None:
             print("   numpy reference at 128^3: skipped (a 57-rhs step needs tens of GB of float64 temporaries; "
                   "per-node cost is independent of N, see 64^3)")
             continue
-        for label, C, bounds in CASES:
+        for _label, C, bounds in CASES:
             K = len(bounds())
             nrhs = C * K
             shape = (n, n, n) if nrhs <= 3 else (n, n, n // 4)

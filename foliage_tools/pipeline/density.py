@@ -5,7 +5,6 @@ from __future__ import annotations
 import re
 import time
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -105,29 +104,22 @@ def density_for_bake(scene: Scene, proto: Prototype, params: DensityParams, warn
 
 def _stored_density(path: Path, volume_at: str, grid: GridSpec) -> tuple[tuple[np.ndarray, np.ndarray] | None, str | None]:
     """(density, wood fraction) on ``grid`` from the input's FoliageLighting volume; (None, reason) or (None, None) if it has none."""
-    from pxr import UsdVol
-
+    from foliage_tools.scene.stored import volume_fields
     from foliage_tools.scene.vdb import read_grid
     from foliage_tools.scene.write import input_files, missing_inputs
 
     if not any(f.suffix == ".vdb" for f in input_files(path)) and not any(u.endswith(".vdb") for u in missing_inputs(path)):
         return None, None  # a raw asset: no grids to reuse (present or missing), no need to compose the stage
-    stage = _stage_of(path)
-    volume = UsdVol.Volume(stage.GetPrimAtPath(volume_at))
-    if not volume:
-        return None, None
-    fields = volume.GetFieldPaths()
-    if "density" not in fields or "woodFraction" not in fields:
+    fields = volume_fields(path, volume_at, ("density", "woodFraction"))
+    if fields is None:
         return None, None
     arrays = []
-    for name in ("density", "woodFraction"):
-        asset = UsdVol.OpenVDBAsset(stage.GetPrimAtPath(fields[name]))
-        ap = asset.GetFilePathAttr().Get() if asset else None
-        if ap is None or not ap.path:
-            return None, f"<{fields[name]}> names no .vdb file"
-        if not ap.resolvedPath or not Path(ap.resolvedPath).is_file():
-            return None, f"@{ap.path}@, named by <{fields[name]}>, does not exist"
-        stored = read_grid(Path(ap.resolvedPath), asset.GetFieldNameAttr().Get() or name)
+    for name, field in fields.items():
+        if not field.asset:
+            return None, f"<{field.prim}> names no .vdb file"
+        if field.resolved is None:
+            return None, f"@{field.asset}@, named by <{field.prim}>, does not exist"
+        stored = read_grid(field.resolved, field.field_name)
         if name == "density" and stored.metadata.get("densityMethod", "area") != "area":
             return None, f"it holds the {stored.metadata.get('densityMethod')} heuristic, not leaf-area density"
         if abs(stored.voxel_size - grid.voxel_size) > 1e-5 * grid.voxel_size:
@@ -144,19 +136,6 @@ def _stored_density(path: Path, volume_at: str, grid: GridSpec) -> tuple[tuple[n
         full[start[0]:end[0], start[1]:end[1], start[2]:end[2]] = stored.values
         arrays.append(full)
     return (arrays[0], arrays[1]), None
-
-
-def _stage_of(path: Path):
-    """The composed input stage, opened once per file version for all its prototypes."""
-    p = Path(path).resolve()
-    return _open_stage(str(p), p.stat().st_mtime_ns)
-
-
-@lru_cache(maxsize=2)
-def _open_stage(path: str, _mtime: int):
-    from pxr import Usd
-
-    return Usd.Stage.Open(path)
 
 
 #: The area method conserves leaf area to float32 round-off (~1e-7); more lost than this is a grid that does not fit.

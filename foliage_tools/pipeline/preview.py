@@ -426,22 +426,18 @@ def baked_sun_mismatches(path: Path, scene: Scene, methods: tuple[str, ...], sun
     keys = [(m, _BAKED_SUN_KEYS[m]) for m in methods if m in _BAKED_SUN_KEYS]
     if not keys:
         return []
-    from pxr import Usd
-
     from foliage_tools.pipeline.stage import first_instance_sun
+    from foliage_tools.scene.stored import authored_vectors
 
-    stage = Usd.Stage.Open(str(path))
+    stored = authored_vectors(path, [(proto.path, f"foliage:{key}:sunDirection")
+                                     for proto in scene.prototypes for _, key in keys])
     out = []
     for i, proto in enumerate(scene.prototypes):
-        prim = stage.GetPrimAtPath(proto.path)
-        if not prim:
-            continue
         drawn = first_instance_sun(scene, i, sun_direction)
         for method, key in keys:
-            attr = prim.GetAttribute(f"foliage:{key}:sunDirection")
-            if not attr or not attr.HasAuthoredValue():
+            baked = stored.get((proto.path, f"foliage:{key}:sunDirection"))
+            if baked is None:
                 continue
-            baked = np.asarray(attr.Get(), dtype=np.float64)
             norm = float(np.linalg.norm(baked))
             if not (norm > 0 and np.all(np.isfinite(baked))):
                 continue

@@ -376,8 +376,10 @@ def test_smax_method_evaluates_the_baked_envelope_like_the_bake(tmp_path):
     src = crown_stage(tmp_path / "crown.usda", n=200)
     baked = tmp_path / "baked.usda"
     bake_optics = parse_leaf_optics(None)
-    # --direct volume: the bake's own eq. 5.7 direct term, which the shader evaluates too
-    run_smax(src, baked, SmaxParams(optics=bake_optics, sun=(45.0, 60.0), direct=DirectChoice(mode="volume")))
+    # --direct volume and --scatter paper: the bake's own eq. 5.7 direct term and the thesis' eq. 5.24, which the
+    # shader evaluates for any sun (the default --scatter leaves needs the shadow rays of the bake's sun)
+    run_smax(src, baked, SmaxParams(optics=bake_optics, sun=(45.0, 60.0), direct=DirectChoice(mode="volume"),
+                                    scatter="paper"))
     scene, _ = read_scene(baked)
     draw = DrawScene.from_scene(scene, None, load_smax_data(baked, scene))
     assert draw.methods == {"smax"}

@@ -320,7 +320,7 @@ def test_one_bounce_light_does_not_exceed_the_scattered_light(crowns, sun):
     """
     p = params(sun)
     albedo = np.maximum(p.optics[0] + p.optics[1], p.optics[2] + p.optics[3])
-    for centres, normals, areas, env in crowns:
+    for _centres, normals, areas, env in crowns:
         res = solve(normals, env.smax, env.tau, up=UP, params=p)
         received = areas @ res.e_scattered.astype(float)
         scattered = albedo * (areas @ res.e_direct.astype(float))
