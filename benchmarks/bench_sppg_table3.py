@@ -92,10 +92,11 @@ def run(path: Path, args) -> None:
     variants = [tuple(v.split(":")) for v in args.g_variants.split(",")]
     for model in ("spp", "exact"):
         for dpath in ("rays", "grid"):
-            for k, (weights, gres) in enumerate(variants):
+            for k, (weights, gres, *more) in enumerate(variants):
                 gres = int(gres.removeprefix("g"))
                 bakes = bake_spp(scene, sun, SppParams(optics=optics, sun=tuple(args.sun), model=model, depth=dpath,
-                                                       g_weights=weights, g_resolution=gres), [], Silent())
+                                                       g_weights=weights, g_resolution=gres,
+                                                       g_orders="orders" in more), [], Silent())
                 r = {b.index: b.result for b in bakes}
                 g = from_prototypes(world, {i: np.repeat(v.gfactor[:, None], 3, axis=1) for i, v in r.items()})[:, 0]
                 for which in ("ss", "spp", "sppg"):
@@ -103,7 +104,7 @@ def run(path: Path, args) -> None:
                     scat = from_prototypes(world, {i: getattr(v, which).scattered for i, v in r.items()})
                     name = f"{which}{'-paper' if model == 'spp' else ''}"
                     if which == "sppg":
-                        name += f" ({weights}, g{gres})"
+                        name += f" ({weights}, g{gres}{', orders' if 'orders' in more else ''})"
                     if (which == "ss" and model == "exact") or (which != "sppg" and k > 0):
                         continue  # ss and spp do not depend on G
                     e = binned_rms(ex_dir + scat, ref_total, depth, thick)
@@ -130,7 +131,8 @@ def main() -> None:
     ap.add_argument("--paths", type=int, default=64_000_000)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/bench_sppg_table3"))
     ap.add_argument("--g-variants", default="paper:g0,radiance:g0,paper:g16,radiance:g16",
-                    help="G-factor variants of the sppg rows, WEIGHTS:gRES (--g-weights, --g-resolution; g0: per leaf)")
+                    help="G-factor variants of the sppg rows, WEIGHTS:gRES[:orders] (--g-weights, --g-resolution, g0: per leaf; "
+                         "--g-orders)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     for s in args.scenes:

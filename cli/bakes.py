@@ -392,6 +392,11 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "carries little light, counts as much as one toward the sun. radiance: each F_v is weighted by the "
                    "plane-parallel single-scattering radiance arriving from v, so G is the share of the point's scattered "
                    "light that is really there (lighting/gfactor.py derives it).")
+@click.option("--g-orders", "g_orders", is_flag=True,
+              help="Apply the G-factor once per order of scattering: G is a share of once-scattered light, and light "
+                   "scattered n times has left the real medium n times over, so the scattered light is scaled by "
+                   "G s / (1 - G (1 - s)), s = the exact slab's once-scattered share at the leaf, instead of by G "
+                   "(shinya2013 eq. 28). It matters for bright leaves (albedo near 1), where s is small.")
 @click.option("--g-resolution", "g_resolution", type=click.IntRange(min=0), default=0, show_default=True,
               help="Measure the G-factor's depths through a coarse leaf-area density grid of this many voxels along the "
                    "longest foliage edge (shinya2013 keeps G on a ~16^3 grid), not from each leaf's own depths. G is "
@@ -416,7 +421,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
 @direct_options
 @bake_options
 @common_options
-def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, model: str | None, g_weights: str, g_resolution: int, depth: str,
+def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, model: str | None, g_weights: str, g_orders: bool, g_resolution: int, depth: str,
         rays_per_leaf: int, gather: int, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
         as_json: bool, quiet: bool, verbose: int) -> None:
     """Simplified plane-parallel scattering with the G-factor (shinya2013).
@@ -443,7 +448,7 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
         params = SppParams(
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
-            resolution=resolution, directions=directions, gfactor=not no_gfactor, refine=refine, model=model, g_weights=g_weights, g_resolution=g_resolution,
+            resolution=resolution, directions=directions, gfactor=not no_gfactor, refine=refine, model=model, g_weights=g_weights, g_orders=g_orders, g_resolution=g_resolution,
             depth=depth, rays_per_leaf=rays_per_leaf, direct=direct_choice(direct_mode, direct_samples), gather=gather,
             volume_purpose=volume_purpose,
         )

@@ -100,6 +100,9 @@ class SppParams:
     g_weights: str = gf.SPPGParams.g_weights
     """``--g-weights``: how G combines its sample directions (lighting.gfactor): ``paper`` (shinya2013 eq. 27, the
     equal-weight mean) or ``radiance`` (weighted by the plane-parallel single-scattering radiance from each)."""
+    g_orders: bool = False
+    """``--g-orders``: G once per order of scattering, G s / (1 - G (1 - s)) with s the exact slab's once-scattered
+    share (lighting.gfactor); False: G once (shinya2013 eq. 28). The sppGFactor grid stays G."""
     g_resolution: int = 0
     """``--g-resolution``: voxels along the longest foliage edge of a coarse leaf-area density grid through which
     the depths of the G-factor alone are measured (shinya2013 sec. 5.1-5.2 keeps G on a ~16³ grid); 0: G from
@@ -318,7 +321,7 @@ def bake_prototype(
         t_depths += time.perf_counter() - t0
         results.append(gf.solve_sppg(
             own, normals=proto.leaves.normals, optics=params.optics, sun_direction=sun_local, directions=dirs_local, up=up_local,
-            neighbour_depths=extra, params=gf.SPPGParams(refine=params.refine, model=params.model, g_weights=params.g_weights), g_depths=g_depths, **vis,
+            neighbour_depths=extra, params=gf.SPPGParams(refine=params.refine, model=params.model, g_weights=params.g_weights, g_orders=params.g_orders), g_depths=g_depths, **vis,
         ))
     result = _mean_result(results)
     # cells of the prototype alone, as seen by its first instance
@@ -480,7 +483,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         "directions": params.directions, "cells": int(sum(p["cells"] for p in protos)), "refine": params.refine,
         "depth": params.depth, "rays_per_leaf": params.rays_per_leaf if params.depth == "rays" else None,
         "gfactor": params.gfactor, "model": gf.SPPGParams(refine=params.refine, model=params.model).resolved_model,
-        "g_weights": params.g_weights, "g_resolution": params.g_resolution,
+        "g_weights": params.g_weights, "g_resolution": params.g_resolution, "g_orders": params.g_orders,
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},

@@ -770,3 +770,98 @@ def test_depth_noise_alone_lowers_g_and_smoother_depths_lift_it_back():
     for w in gf.G_WEIGHTS:
         assert deficits["fine", w] > 0.01
         assert deficits["coarse", w] < 0.5 * deficits["fine", w]
+
+
+# --------------------------------------------------------------------------
+# G once per order of scattering (SPPGParams.g_orders)
+# --------------------------------------------------------------------------
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 1.0), st.floats(0.0, 1.0), st.integers(1, 200))
+def test_orders_g_is_the_sum_of_g_to_the_n_over_a_geometric_series_of_orders(g, share, terms):
+    """G s / (1 - G (1 - s)) = Σ_n G^n E_n / Σ_n E_n for E_n ∝ (1 - s)^{n-1} (the definition, summed directly).
+
+    The direct sum runs to 4000 orders; its tail beyond is (1 - s)^4000 of the total, so the comparison holds to
+    1e-9 wherever (1 - s)^4000 < 1e-10, i.e. s > 6e-3 (below that both sides are compared at s = 6e-3's bound).
+    """
+    share = max(share, 6e-3)
+    n = np.arange(1, 4001)
+    e_n = (1.0 - share) ** (n - 1)
+    want = float(np.sum(g**n * e_n) / np.sum(e_n))
+    assert float(gf._orders_g(np.array(g), np.array(share))) == pytest.approx(want, abs=1e-9)
+
+
+def test_orders_g_limits():
+    """G = 1 stays 1 (plane-parallel), s = 1 (single scattering only) leaves G, G = 0 stays 0; never above G."""
+    g = np.linspace(0.0, 1.0, 11)
+    assert np.all(gf._orders_g(np.ones(5), np.linspace(0.0, 1.0, 5)) == 1.0)  # incl. s = 0, G = 1: 1, not 0/0
+    np.testing.assert_allclose(gf._orders_g(g, np.ones_like(g)), g, rtol=0, atol=1e-15)
+    assert np.all(gf._orders_g(np.zeros(5), np.linspace(0.0, 1.0, 5)) == 0.0)
+    for s in (0.05, 0.3, 0.8):
+        assert np.all(gf._orders_g(g, np.full_like(g, s)) <= g + 1e-15)
+
+
+def test_once_scattered_share_against_the_isotropic_slabs_first_order():
+    """The exact slab's once-scattered E of a horizontal leaf against the closed form of single scattering.
+
+    Isotropic phase, albedo 0.9, sun cosine 0.6, slab τ = 2: a beam of unit perpendicular irradiance makes the
+    once-scattered source S(t') = ω e^{-t'/μ0} / (4π) per unit vertical optical depth and steradian, and both faces
+    of a horizontal leaf at depth t receive F↓ + F↑ = 2π ∫_0^τ S(t') E2(|t - t'|) dt' (E2 the exponential
+    integral). s × E must equal that. Bound 3e-3: the slab table's stated interpolation error (slab_table; the
+    8-stream quadrature adds less here), measured 0.7e-4 … 8.7e-4 at these depths.
+    """
+    from scipy.integrate import quad
+
+    from foliage_tools.lighting.phase import hg_phase
+    from foliage_tools.lighting.slab_table import leaf_weights
+
+    mu0, tau, omega = 0.6, 2.0, 0.9
+    t = np.array([0.1, 0.5, 1.0, 1.5, 1.9])
+    weights = leaf_weights(np.ones(len(t)), gf.EXACT_STREAMS)
+    albedo = np.array([omega])
+    phases = [hg_phase(0.0)]
+    total = gf._exact_leaf_irradiance(t / mu0, np.full(len(t), tau / mu0), mu0, weights, albedo, phases)
+    once = gf._once_scattered_share(t / mu0, np.full(len(t), tau / mu0), mu0, weights, albedo, phases, total) * total
+    want = [0.5 * omega * (quad(lambda x, tt=tt: math.exp(-x / mu0) * expn(2, abs(tt - x)), 0.0, tt)[0]
+                           + quad(lambda x, tt=tt: math.exp(-x / mu0) * expn(2, abs(tt - x)), tt, tau)[0]) for tt in t]
+    np.testing.assert_allclose(once[:, 0], want, rtol=3e-3)
+    # and the test is in the regime g_orders is for: most of this bright slab's light is scattered more than once
+    # (s measured 0.21-0.41 here), so a share stuck at 1 (G applied once) would fail the line above by far
+    assert np.all(once[:, 0] < 0.6 * total[:, 0])
+
+
+def test_g_orders_in_solve_sppg():
+    """sppg = G_orders(G, s) × spp per channel, with s from the exact slab for either model; nothing else changes.
+
+    Expected from the two helpers tested above (the definition), so to rounding. Also: with ``g_orders`` in an
+    infinite slab G = 1 stays 1, so SPPG is still the exact solution there.
+    """
+    grid = GridSpec(origin=(0.0, 0.0, 0.0), voxel_size=1.0, shape=(9, 9, 4))
+    rho = np.full(grid.shape, 0.7)
+    dirs = gf.sample_directions(16)
+    sun = sun_at(55.0)
+    pts = grid.index_to_world(np.array([[1, 4, 2], [4, 4, 1], [7, 2, 3]]))
+    s = dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs, points=pts)
+    kw = dict(normals=np.tile([0.0, 0.6, 0.8], (3, 1)), optics=OPTICS, sun_direction=sun, directions=dirs)
+    for model in gf.MODELS:
+        base = gf.solve_sppg(s, **kw, params=gf.SPPGParams(model=model))
+        res = gf.solve_sppg(s, **kw, params=gf.SPPGParams(model=model, g_orders=True))
+        np.testing.assert_array_equal(res.spp.scattered, base.spp.scattered)
+        np.testing.assert_array_equal(res.sppg.direct, base.sppg.direct)
+        from foliage_tools.lighting.slab_table import leaf_weights
+
+        phases = [canopy_bilambertian_phase(reflectance=r, transmittance=t)
+                  for r, t in zip(OPTICS.reflectance, OPTICS.transmittance)]
+        w = leaf_weights(np.full(3, 0.8), gf.EXACT_STREAMS)
+        exact = gf._exact_leaf_irradiance(s.sun_depth, s.sun_thickness, sun[2], w, np.asarray(OPTICS.albedo), phases)
+        share = gf._once_scattered_share(s.sun_depth, s.sun_thickness, sun[2], w, np.asarray(OPTICS.albedo), phases, exact)
+        g_n = gf._orders_g(base.gfactor[:, None], share)
+        np.testing.assert_allclose(res.sppg.scattered, g_n * base.spp.scattered, rtol=1e-12)
+        assert np.all(res.sppg.scattered <= base.sppg.scattered * (1 + 1e-12))
+    grid, rho, column = wide_slab()
+    s = dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs, points=column)
+    res = gf.solve_sppg(s, normals=np.tile([0.0, 0.0, 1.0], (len(column), 1)), optics=OPTICS, sun_direction=sun,
+                        directions=dirs, params=gf.SPPGParams(g_orders=True))
+    np.testing.assert_allclose(res.sppg.scattered, res.spp.scattered, rtol=1e-12)
+    np.testing.assert_allclose(res.sppg.sky_scattered, res.spp.sky_scattered, rtol=1e-12)
