@@ -6,7 +6,8 @@ of the light rays that intersect the mesh" (eq. 29), of the *total* irradiance o
 intersection). Printed with (<L>^2 - <L0>^2) under the root; ``literal`` below evaluates that form as printed
 (signed: negative when the model is darker), ``table3`` the squared difference of class means.
 
-Per scene the reference is traced once (cached in --cache), then every variant is scored::
+Per scene the reference is traced once (cached in --cache, keyed by scene, optics, sun, noise and paths; delete
+the file to trace again), then every variant is scored (``--g-variants``: the sppg rows' G-factor options)::
 
     python benchmarks/bench_sppg_table3.py examples/tree_small.usda \\
         ../shared/assets/webots_oak/oak.usda ../shared/assets/sapling_blendertree/blender_tree.usda
@@ -21,6 +22,7 @@ metric, the scale every other score is relative to) and each method's error over
 from __future__ import annotations
 
 import argparse
+from types import SimpleNamespace
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +37,7 @@ from foliage_tools.pipeline.reference import ReferenceParams, bake_reference
 from foliage_tools.pipeline.report import Silent
 from foliage_tools.pipeline.spp import SppParams, bake_spp
 from foliage_tools.pipeline.stage import begin_bake
+from foliage_tools.pipeline.world import bake_world
 
 
 def literal_eq30(x, ref, depth, thickness, bins=8) -> float:
@@ -62,8 +65,17 @@ def _class_means(x, inv):
 def run(path: Path, args) -> None:
     optics = parse_leaf_optics(args.leaf_optics)
     _, scene, sun = begin_bake("bench", path, None, tuple(args.sun), Silent())
-    ref = bake_reference(scene, sun, ReferenceParams(optics=optics, paths=args.paths, seed=0, noise=args.noise), Silent())
-    world, res = ref.world, ref.result
+    key = f"{path.stem}-ref-{args.leaf_optics}-{args.sun[0]:g},{args.sun[1]:g}-{args.noise:g}-{args.paths}.npz"
+    if (args.cache / key).exists():  # the reference of an earlier run (seed 0): only the methods are re-run
+        z = np.load(args.cache / key)
+        res = SimpleNamespace(e_direct=z["e_direct"], e_scattered=z["e_scattered"], paths=int(z["paths"]),
+                              noise_rel=float(z["noise_rel"]), noise_rel_total=float(z["noise_rel_total"]))
+        world = bake_world(scene)
+    else:
+        ref = bake_reference(scene, sun, ReferenceParams(optics=optics, paths=args.paths, seed=0, noise=args.noise), Silent())
+        world, res = ref.world, ref.result
+        np.savez(args.cache / key, e_direct=res.e_direct, e_scattered=res.e_scattered, paths=res.paths,
+                 noise_rel=res.noise_rel, noise_rel_total=res.noise_rel_total)
     ref_direct, ref_scat = res.e_direct, res.e_scattered
     ref_total = ref_direct + ref_scat
     depth, thick = depth_thickness(world, sun.direction)
@@ -77,24 +89,31 @@ def run(path: Path, args) -> None:
     print("| method | depths | exact-direct | own-direct | area-classes | literal | / SS | mean G | S/S_ref lowest 5th |")
     print("|---|---|---|---|---|---|---|---|---|")
     low = depth >= np.quantile(depth, 0.8)
+    variants = [tuple(v.split(":")) for v in args.g_variants.split(",")]
     for model in ("spp", "exact"):
         for dpath in ("rays", "grid"):
-            bakes = bake_spp(scene, sun, SppParams(optics=optics, sun=tuple(args.sun), model=model, depth=dpath), [], Silent())
-            r = {b.index: b.result for b in bakes}
-            g = from_prototypes(world, {i: np.repeat(v.gfactor[:, None], 3, axis=1) for i, v in r.items()})[:, 0]
-            for which in ("ss", "spp", "sppg"):
-                own = from_prototypes(world, {i: getattr(v, which).direct for i, v in r.items()})
-                scat = from_prototypes(world, {i: getattr(v, which).scattered for i, v in r.items()})
-                name = f"{which}{'-paper' if model == 'spp' else ''}"
-                if which == "ss" and model == "exact":
-                    continue
-                e = binned_rms(ex_dir + scat, ref_total, depth, thick)
-                ss_share = binned_rms(ex_dir, ref_total, depth, thick)
-                lowr = scat[low].sum() / max(ref_scat[low].sum(), 1e-300)
-                print(f"| {name} | {dpath} | {e:.3f} | {binned_rms(own + scat, ref_total, depth, thick):.3f} | "
-                      f"{binned_rms(ex_dir + scat, ref_total, ad, at):.3f} | "
-                      f"{literal_eq30(ex_dir + scat, ref_total, depth, thick):+.3f} | {e / ss_share:.2f} | "
-                      f"{g.mean():.3f} | {lowr:.2f} |")
+            for k, (weights, gres, *more) in enumerate(variants):
+                gres = int(gres.removeprefix("g"))
+                bakes = bake_spp(scene, sun, SppParams(optics=optics, sun=tuple(args.sun), model=model, depth=dpath,
+                                                       g_weights=weights, g_resolution=gres,
+                                                       g_orders="orders" in more), [], Silent())
+                r = {b.index: b.result for b in bakes}
+                g = from_prototypes(world, {i: np.repeat(v.gfactor[:, None], 3, axis=1) for i, v in r.items()})[:, 0]
+                for which in ("ss", "spp", "sppg"):
+                    own = from_prototypes(world, {i: getattr(v, which).direct for i, v in r.items()})
+                    scat = from_prototypes(world, {i: getattr(v, which).scattered for i, v in r.items()})
+                    name = f"{which}{'-paper' if model == 'spp' else ''}"
+                    if which == "sppg":
+                        name += f" ({weights}, g{gres}{', orders' if 'orders' in more else ''})"
+                    if (which == "ss" and model == "exact") or (which != "sppg" and k > 0):
+                        continue  # ss and spp do not depend on G
+                    e = binned_rms(ex_dir + scat, ref_total, depth, thick)
+                    ss_share = binned_rms(ex_dir, ref_total, depth, thick)
+                    lowr = scat[low].sum() / max(ref_scat[low].sum(), 1e-300)
+                    print(f"| {name} | {dpath} | {e:.3f} | {binned_rms(own + scat, ref_total, depth, thick):.3f} | "
+                          f"{binned_rms(ex_dir + scat, ref_total, ad, at):.3f} | "
+                          f"{literal_eq30(ex_dir + scat, ref_total, depth, thick):+.3f} | {e / ss_share:.2f} | "
+                          f"{g.mean():.3f} | {lowr:.2f} |")
             if model == "exact" and dpath == "grid":
                 np.savez(args.cache / f"{path.stem}.npz", ref_direct=ref_direct, ref_scat=ref_scat, ex_dir=ex_dir,
                          depth=depth, thick=thick, ad=ad, at=at, g=g,
@@ -111,6 +130,9 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=0.02)
     ap.add_argument("--paths", type=int, default=64_000_000)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/bench_sppg_table3"))
+    ap.add_argument("--g-variants", default="paper:g0,radiance:g0,paper:g16,radiance:g16",
+                    help="G-factor variants of the sppg rows, WEIGHTS:gRES[:orders] (--g-weights, --g-resolution, g0: per leaf; "
+                         "--g-orders)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     for s in args.scenes:

@@ -85,6 +85,83 @@ have units of length when the rates coincide, while eq. (26) defines a ratio of
 two integrals; and the prefactor of δI(P, B1) is the direct light at P,
 exp(-σt z0 / cos θ0), not exp(-σt z0 / cos θ).
 
+Weighting the directions (``SPPGParams.g_weights``)
+---------------------------------------------------
+What SPPG scales (eq. (28)) is an *irradiance*: a leaf of normal n receives
+E = ∫ I(P, s) |n · s| dΩ, with I(P, s) the radiance of eq. (23). Over the
+canopy's spherical leaf distribution |n · s| averages to 1/2, so the mean leaf
+receives (1/2) ∫ I(P, s) dΩ, and with the sample directions as an equal-area
+quadrature (Δω = 4π/N each) the share of its plane-parallel single scattering
+that the real medium holds is a ratio of sums of the eq. (24) integrals:
+
+    G_rad = 1 - Σ_i δI(P, B1; s_i) / Σ_i δI(P, P; s_i) = Σ_i w_i F_i / Σ_i w_i,
+    w_i = δI(P, P; s_i) ∝ p(l · s_i) e^{-d0} ∫_0^{L_i} e^{-c_i l} dl
+
+(c ≥ 0; for c < 0, e^{-L} ∫_0^L e^{-|c| l} dl, the same integral written with
+decaying exponentials: |c| L = d0 - L). Here p is the canopy phase function
+(1/4π normalisation, :func:`~foliage_tools.lighting.phase.canopy_bilambertian_phase`)
+at the scattering angle between the beam and the ray toward P, cos Θ = l · s_i;
+the factor ω σ/(4π) is common to all directions and cancels. This is where we
+depart from eq. (27): the paper averages the ratios, G = 1 - (1/N) Σ_i G_si,
+which equals the ratio of the sums only when every direction carries the same
+plane-parallel light. ``g_weights="paper"`` keeps eq. (27); ``"radiance"`` is
+G_rad, evaluated per channel (p depends on r and t; for r = t it is the same
+shape in every channel). A direction with no plane-parallel path (L = 0) has
+w = 0; a point where every w is 0 (no medium in any direction) keeps eq. (27)'s
+mean (G = 1 there). Not weighted: the leaf's own |n · s_i| (16 directions are
+too few to resolve a leaf's cosine lobe; the weighting above is for the mean
+orientation, the one the plane-parallel part is exact for).
+
+What the weights do, measured (2026-12-02; commands in README "The G-factor's
+weights and depths"): a horizontal direction (c = 1, L = ∞) has
+w = p e^{-d0}, a direction toward the sun (c → 0) w ≈ p e^{-d0} d0, a downward
+one (c > 1) less than either, so G_rad leans toward the up-sun directions. In
+the uniform layer the two agree (mean G over the inner region 0.918 paper,
+0.919 radiance, grid depths; the sun-60° bins of ``sppg`` move from
+-9.8 … -6.5 % to -9.2 … -7.0 %): the weighting is not what takes the layer's
+6-10 %. On the isolated tree_small crown in the paper's setting G_rad is lower
+(mean 0.586 against 0.678), which helps the exact slab there (binned total
+0.296/0.258 -> 0.242/0.204, ray/grid depths) and hurts the paper's closed form
+(0.147/0.157 -> 0.177/0.191).
+
+Depth noise (``g_depths``; ``foliage spp --g-resolution``)
+----------------------------------------------------------
+F_v is concave in the depths where h ~ L (F = 1 for h >= L, < 1 below), so
+per-leaf depth noise alone lowers G: the mean of F over noisy h is below F of
+the mean h. In the uniform layer's inner region (sun 60°, the grid path: the
+64-voxel leaf-area density holds under one 0.1 m card per voxel) the mean grid
+depths toward each of the 16 directions are within 1 % of the exact depths of
+a uniform box, yet G from them is 0.918 (0.919 radiance) against 0.994
+(0.992) from the box's exact depths; with the exact light depths d0 and the
+grid's h it is still 0.904 (0.926). This bias, not the open sides, is the 6-10
+% of issue #15's finding 1. shinya2013 (sec. 5.1-5.2) keeps G and the depths
+on a ~16³ grid per instance; ``solve_sppg(g_depths=...)`` takes the depths of
+G apart from those of the plane-parallel part, and ``foliage spp
+--g-resolution N`` measures them through a coarse density grid of N voxels
+along the longest foliage edge (0, the default: each leaf's own depths).
+
+Orders of scattering (``SPPGParams.g_orders``; ``foliage spp --g-orders``)
+--------------------------------------------------------------------------
+Eqs. (24)-(27) take I' = I0 (app. A.2): G is the present share of the
+*once*-scattered light. Light scattered n times has crossed the missing
+medium's region n times over; if each order keeps the share G of the order
+before it, E_present = Σ_n G^n E_n. With the orders' ratio taken as constant
+(E_{n+1} = a E_n, so the once-scattered share of the slab's E is s = E_1/E =
+1 - a) the sum is
+
+    G_orders = G s / (1 - G (1 - s)),
+
+1 for G = 1, G for s = 1 (all light scattered once: albedo -> 0), and below
+G for bright leaves. s is taken from the exact slab at the leaf (its solution
+at albedo ε = 1e-4 scaled by ω/ε is its once-scattered part) for either
+``model``. This departs from eq. (28), which applies the single-scattering G
+to all orders. Measured (2026-12-02, README "The G-factor's weights and
+depths"): with ``--g-resolution 16`` it brings exact + G in the paper's
+setting (r = t, albedo 0.95, sun from above) from 0.389 / 0.351 to 0.045 /
+0.056 on tree_small (ray / grid depths; the paper's 6.2 %) and from 0.379 /
+0.359 to 0.136 / 0.108 on the oak, and keeps the layer within -9.2 … -6.6 %
+(60°) and -3.6 … +0.2 % (30°) per bin.
+
 Sample directions: a spherical Fibonacci set (González 2010, "Measurement of
 areas on a sphere using Fibonacci and latitude-longitude lattices"), z_i =
 1 - (2i+1)/N about ``up`` with golden-angle azimuths: equal-area, no direction
@@ -112,6 +189,7 @@ from .spp import forward_fraction, refined_parts, spp_field
 __all__ = [
     "DEFAULT_DIRECTIONS",
     "EXACT_STREAMS",
+    "G_WEIGHTS",
     "MODELS",
     "LeafIrradiance",
     "SPPGParams",
@@ -124,6 +202,9 @@ __all__ = [
 
 #: Plane-parallel models of ``SPPGParams.model`` (module docstring).
 MODELS = ("exact", "spp")
+#: How G combines the sample directions (``SPPGParams.g_weights``, module docstring): shinya2013 eq. (27)'s
+#: equal-weight mean, or weighted by each direction's plane-parallel single-scattering radiance.
+G_WEIGHTS = ("paper", "radiance")
 #: Streams per hemisphere of the exact plane-parallel tables (``model="exact"``): against 32 streams the
 #: leaf irradiance differs by <= 1.3e-3 for tilted leaves and <= 4e-5 for the mean over orientations
 #: (measured, τ = 3, albedo 0.2-1, μ0 0.3-1), below the tables' 3e-3 interpolation error, at half the cost of 16.
@@ -217,12 +298,43 @@ def _present_fraction(c, h, length):
 
 
 @njit(cache=True)
-def _gfactor_kernel(h, vn, mu0, d0, w0, out):
+def _log_path_integral(a, length):
+    """log ∫_0^L e^{-a l} dl for a >= 0 (-inf for L = 0; inf for a = 0, L = inf)."""
+    if length == 0.0:
+        return -math.inf
+    if length == math.inf:
+        return -math.log(a) if a > 0.0 else math.inf
+    x = a * length
+    if x < 1e-8:
+        return math.log(length) + math.log1p(-0.5 * x)
+    return math.log(-math.expm1(-x)) - math.log(a)
+
+
+@njit(cache=True)
+def _log_pp_single_scattering(c, length, d0):
+    """log of δI(P, P) along one direction, without the common factor ω σ/(4π) and the phase (module docstring).
+
+    δI(P, P) ∝ ∫_0^L e^{-l} e^{-(d0 - l v_n/μ0)} dl = e^{-d0} ∫_0^L e^{-c l} dl for c >= 0 and, for c < 0 (the
+    ray climbs toward the lit face faster than the beam's depth falls), e^{-L} ∫_0^L e^{-|c| l} dl, since then
+    |c| L = d0 - L: only decaying exponentials, finite for any depth.
+    """
+    if c >= 0.0:
+        if d0 == math.inf:
+            return -math.inf
+        return -d0 + _log_path_integral(c, length)
+    return -length + _log_path_integral(-c, length)
+
+
+@njit(cache=True)
+def _gfactor_kernel(h, vn, mu0, d0, w0, log_phase, weighted, out):
     n_pts, n_dir = h.shape
+    frac = np.empty(n_dir)
+    logw = np.empty(n_dir)
     for p in range(n_pts):
         t0 = mu0 * d0[p]
         below = mu0 * (w0[p] - d0[p]) if w0[p] != math.inf else math.inf
         acc = 0.0
+        top = -math.inf
         for q in range(n_dir):
             v = vn[q]
             if v > 0.0:
@@ -231,11 +343,29 @@ def _gfactor_kernel(h, vn, mu0, d0, w0, out):
                 length = below / -v
             else:
                 length = math.inf
-            acc += _present_fraction(1.0 - v / mu0, h[p, q], length)
-        out[p] = acc / n_dir
+            c = 1.0 - v / mu0
+            frac[q] = _present_fraction(c, h[p, q], length)
+            acc += frac[q]
+            if weighted:
+                logw[q] = log_phase[q] + _log_pp_single_scattering(c, length, d0[p])
+                if logw[q] > top:
+                    top = logw[q]
+        if not weighted or top == -math.inf or top == math.inf:
+            # eq. (27); also where no direction carries plane-parallel single scattering (a point
+            # with no medium along any direction: G = 1 there, as with the paper's mean)
+            out[p] = acc / n_dir
+            continue
+        num = 0.0
+        den = 0.0
+        for q in range(n_dir):
+            w = math.exp(logw[q] - top)
+            num += w * frac[q]
+            den += w
+        out[p] = num / den
 
 
-def gfactor(*, boundary_depth, directions, light_direction, light_depth, light_thickness, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+def gfactor(*, boundary_depth, directions, light_direction, light_depth, light_thickness, up=(0.0, 0.0, 1.0),
+            weights: str = "paper", phase=None) -> np.ndarray:
     """Geometric compensation factor G per point (shinya2013 eqs. (26)-(27), re-derived).
 
     Parameters
@@ -251,12 +381,23 @@ def gfactor(*, boundary_depth, directions, light_direction, light_depth, light_t
         Slant optical depth and chord thickness of each point along the light.
     up : array_like (3,)
         Slab normal (the stage's up axis).
+    weights : {"paper", "radiance"}
+        How the directions' present fractions F_v are combined (module
+        docstring): ``"paper"``, eq. (27)'s equal-weight mean; ``"radiance"``,
+        each F_v weighted by the plane-parallel single-scattering radiance
+        δI(P, P) arriving from v (the ratio of the summed eq. (24) integrals).
+    phase : callable, optional
+        With ``weights="radiance"``: the phase function p(cos Θ) (1/4π
+        normalisation) of the light scattered toward P, evaluated at
+        cos Θ = light_direction · v; None: isotropic. Ignored for ``"paper"``.
 
     Returns
     -------
     numpy.ndarray (P,)
         G in [0, 1]; 1 where the medium is plane-parallel around the point.
     """
+    if weights not in G_WEIGHTS:
+        raise ValueError(f"weights must be one of {', '.join(G_WEIGHTS)}, got {weights!r}")
     upv = _unit(up, "up")
     light = _unit(light_direction, "light_direction")
     mu0 = float(light @ upv)
@@ -276,8 +417,16 @@ def gfactor(*, boundary_depth, directions, light_direction, light_depth, light_t
     if np.any(d0 > w0):
         raise ValueError("light_depth must not exceed light_thickness")
     vn = np.ascontiguousarray(dirs @ upv)
+    log_phase = np.zeros(dirs.shape[0])
+    if weights == "radiance" and phase is not None:
+        pv = np.asarray(phase(np.clip(dirs @ light, -1.0, 1.0)), dtype=np.float64).reshape(dirs.shape[0])
+        if np.any(~np.isfinite(pv)) or np.any(pv < 0.0):
+            raise ValueError("the phase function must be finite and >= 0")
+        with np.errstate(divide="ignore"):
+            log_phase = np.log(pv)
     out = np.empty(h.shape[0])
-    _gfactor_kernel(np.ascontiguousarray(h), vn, mu0, np.ascontiguousarray(d0), np.ascontiguousarray(w0), out)
+    _gfactor_kernel(np.ascontiguousarray(h), vn, mu0, np.ascontiguousarray(d0), np.ascontiguousarray(w0),
+                    np.ascontiguousarray(log_phase), weights == "radiance", out)
     return out
 
 
@@ -306,8 +455,19 @@ class SPPGParams:
     """Gauss-Legendre nodes in the cosine, per hemisphere, of the refined leaf integral."""
     refine_azimuth_nodes: int = 16
     """Equally spaced azimuths of the refined leaf integral."""
+    g_weights: str = "paper"
+    """How G combines its sample directions (:data:`G_WEIGHTS`, module docstring): ``"paper"``, shinya2013
+    eq. (27)'s equal-weight mean of the present fractions; ``"radiance"``, each weighted by the plane-parallel
+    single-scattering radiance from that direction (then G is per channel: the phase differs with r and t)."""
+
+    g_orders: bool = False
+    """Apply G once per order of scattering (module docstring, "Orders of scattering"): with s the exact slab's
+    once-scattered share of E_scattered, the scattered light is scaled by G s / (1 - G (1 - s)) instead of G
+    (shinya2013 eq. (28) applies G once). False: the paper's."""
 
     def __post_init__(self) -> None:
+        if self.g_weights not in G_WEIGHTS:
+            raise ValueError(f"SPPGParams.g_weights must be one of {', '.join(G_WEIGHTS)}, got {self.g_weights!r}")
         if self.model is not None and self.model not in MODELS:
             raise ValueError(f"SPPGParams.model must be one of {', '.join(MODELS)} or None, got {self.model!r}")
         if self.model == "exact" and self.refine:
@@ -350,7 +510,8 @@ class SPPGResult:
     ss: LeafIrradiance
     """The paper's single-scattering baseline (scattered = 0)."""
     gfactor: np.ndarray
-    """(L,) G toward the sun."""
+    """(L,) G toward the sun (with ``g_weights="radiance"`` or ``g_orders`` the mean over the channels' G; with
+    ``g_orders`` the factor applied, G s / (1 - G (1 - s)))."""
     directions: np.ndarray
     """(N, 3) the sample directions used."""
     mu0: float
@@ -439,6 +600,30 @@ def _exact_leaf_irradiance(u, big_u, mu, weights, albedo, phases) -> np.ndarray:
     return out
 
 
+#: Albedo of the single-scattering tables of ``g_orders``: the exact slab's E at ω = ε, times ω/ε, is its
+#: once-scattered part to O(ε) relative.
+_ONCE_ALBEDO = 1e-4
+
+
+def _once_scattered_share(u, big_u, mu, weights, albedo, phases, total) -> np.ndarray:
+    """(L, C) s = E_1 / E: the once-scattered share of the exact slab's E_scattered (``g_orders``, module docstring).
+
+    E_1 is the exact slab solution at albedo ε = 1e-4 scaled by ω/ε (single scattering is linear in ω for a fixed
+    phase). Where E = 0 (no medium), s = 1: G is then left as it is.
+    """
+    eps = _ONCE_ALBEDO
+    once = _exact_leaf_irradiance(u, big_u, mu, weights, np.full_like(albedo, eps), phases) * (albedo / eps)[None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = np.where(total > 0.0, once / np.where(total > 0.0, total, 1.0), 1.0)
+    return np.clip(share, 0.0, 1.0)
+
+
+def _orders_g(g, share) -> np.ndarray:
+    """G_n = G s / (1 - G (1 - s)): each order of scattering keeps the share G of the one before (module docstring)."""
+    den = 1.0 - g * (1.0 - share)
+    return np.where(den > 0.0, g * share / np.where(den > 0.0, den, 1.0), 1.0)
+
+
 def solve_sppg(
     depths: DepthSamples,
     *,
@@ -451,6 +636,7 @@ def solve_sppg(
     params: SPPGParams | None = None,
     sun_visible=None,
     sample_visible=None,
+    g_depths: DepthSamples | None = None,
 ) -> SPPGResult:
     """SPPG, SPP and SS irradiance per leaf for the sun and a uniform sky (shinya2013 sec. 5.4 steps 4-6).
 
@@ -485,6 +671,11 @@ def solve_sppg(
         instead of |n · l| exp(-u).
     sample_visible : array_like (L, N), optional
         The same per sample direction, for the sky's direct light.
+    g_depths : DepthSamples, optional
+        Depths of the same L points from which the G-factors are computed
+        (plus ``neighbour_depths``) instead of ``depths``: e.g. through a
+        coarse density grid, whose smooth depths do not bias G low the way
+        per-leaf depth noise does (module docstring, "Depth noise").
 
     Returns
     -------
@@ -500,6 +691,15 @@ def solve_sppg(
     nb = neighbour_depths
     if neighbour_depths is not None:
         depths = depths + neighbour_depths
+    if g_depths is None:
+        g_depths = depths
+    else:
+        if not isinstance(g_depths, DepthSamples):
+            raise ValueError(f"g_depths must be a DepthSamples, got {type(g_depths).__name__}")  # noqa: TRY004
+        if (g_depths.n_points, g_depths.n_directions) != (depths.n_points, depths.n_directions):
+            raise ValueError("g_depths must hold the same points and directions as depths")
+        if neighbour_depths is not None:
+            g_depths = g_depths + neighbour_depths
     upv = _unit(up, "up")
     sun = _unit(sun_direction, "sun_direction")
     mu0 = float(sun @ upv)
@@ -531,22 +731,33 @@ def solve_sppg(
     else:
         direct = np.abs(nl @ sun) * np.asarray(sun_visible, dtype=np.float64) * np.exp(-(0.0 if nb is None else nb.sun_depth))
     direct3 = np.repeat(direct[:, None], n_ch, axis=1)
-    g_sun = gfactor(
-        boundary_depth=depths.sample_depth,
-        directions=dirs,
-        light_direction=sun,
-        light_depth=u,
-        light_thickness=big_u,
-        up=upv,
-    )
+
+    def g_of(light, light_depth, light_thickness) -> np.ndarray:
+        """(L, C) G toward ``light``: one column per channel (its phase) with radiance weights."""
+        kw = dict(boundary_depth=g_depths.sample_depth, directions=dirs, light_direction=light,
+                  light_depth=light_depth, light_thickness=light_thickness, up=upv)
+        if params.g_weights == "paper":
+            return np.repeat(gfactor(**kw)[:, None], n_ch, axis=1)
+        return np.stack([gfactor(**kw, weights="radiance", phase=ph) for ph in phases], axis=1)
+
+    g_sun = g_of(sun, g_depths.sun_depth, g_depths.sun_thickness)
     model = params.resolved_model
-    leaf_w = leaf_weights(np.abs(nl @ upv), EXACT_STREAMS) if model == "exact" else None
+    leaf_w = leaf_weights(np.abs(nl @ upv), EXACT_STREAMS) if model == "exact" or params.g_orders else None
     if model == "exact":
         scat = _exact_leaf_irradiance(u, big_u, mu0, leaf_w, albedo, phases)
     elif params.refine:
         scat = _refined_leaf_irradiance(u, big_u, nl, sun, upv, mu0, phases, albedo, t_sun, params)
     else:
         scat = spp_field(u[:, None], big_u[:, None], albedo=albedo[None, :], forward_fraction=t_sun[None, :]).leaf_irradiance
+
+    def orders(g, uu, ww, mu, e_model) -> np.ndarray:
+        """``g_orders``: G per order of scattering from the exact slab's once-scattered share."""
+        if not params.g_orders:
+            return g
+        exact = e_model if model == "exact" else _exact_leaf_irradiance(uu, ww, mu, leaf_w, albedo, phases)
+        return _orders_g(g, _once_scattered_share(uu, ww, mu, leaf_w, albedo, phases, exact))
+
+    g_sun = orders(g_sun, u, big_u, mu0, scat)
 
     # --- sky -----------------------------------------------------------------
     sky_direct = np.zeros((n_leaves, n_ch))
@@ -563,28 +774,21 @@ def solve_sppg(
             else:
                 tj = np.array([float(forward_fraction(ph, mus[j])) for ph in phases])
                 ej = spp_field(uj[:, None], wj[:, None], albedo=albedo[None, :], forward_fraction=tj[None, :]).leaf_irradiance
-            gj = gfactor(
-                boundary_depth=depths.sample_depth,
-                directions=dirs,
-                light_direction=dirs[j],
-                light_depth=uj,
-                light_thickness=wj,
-                up=upv,
-            )
+            gj = orders(g_of(dirs[j], g_depths.sample_depth[:, j], g_depths.sample_thickness[:, j]), uj, wj, float(mus[j]), ej)
             if sample_visible is None:
                 vis_j = np.exp(-uj)
             else:
                 vis_j = np.asarray(sample_visible, dtype=np.float64)[:, j] * np.exp(-(0.0 if nb is None else nb.sample_depth[:, j]))
             sky_direct += (weights[j] * np.abs(nl @ dirs[j]) * vis_j)[:, None]
             sky_spp += weights[j] * ej
-            sky_sppg += weights[j] * gj[:, None] * ej
+            sky_sppg += weights[j] * gj * ej
 
     zeros = np.zeros((n_leaves, n_ch))
     result = SPPGResult(
-        sppg=LeafIrradiance(direct=direct3, scattered=g_sun[:, None] * scat, sky_direct=sky_direct, sky_scattered=sky_sppg),
+        sppg=LeafIrradiance(direct=direct3, scattered=g_sun * scat, sky_direct=sky_direct, sky_scattered=sky_sppg),
         spp=LeafIrradiance(direct=direct3, scattered=scat, sky_direct=sky_direct, sky_scattered=sky_spp),
         ss=LeafIrradiance(direct=direct3, scattered=zeros, sky_direct=sky_direct, sky_scattered=zeros.copy()),
-        gfactor=g_sun,
+        gfactor=g_sun.mean(axis=1),
         directions=dirs,
         mu0=mu0,
         refined=bool(params.refine),

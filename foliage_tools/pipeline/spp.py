@@ -54,8 +54,9 @@ from foliage_tools.lighting import depth as depth_mod
 from foliage_tools.lighting import gfactor as gf
 from foliage_tools.lighting import raydepth as rd
 from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.lighting.phase import canopy_bilambertian_phase
 from foliage_tools.params import DensityParams
-from foliage_tools.pipeline.density import DensityResult, density_for_bake, vdb_path
+from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.gather import bake_gather, check_gather
 from foliage_tools.pipeline.forest import forest_light
@@ -97,6 +98,16 @@ class SppParams:
     model: str | None = None
     """``--model``: ``exact`` (the exact slab solution per leaf, lighting.slab_table) or ``spp`` (shinya2013's closed
     form, eqs. 17-22); None: ``spp`` with ``refine``, else ``exact``."""
+    g_weights: str = gf.SPPGParams.g_weights
+    """``--g-weights``: how G combines its sample directions (lighting.gfactor): ``paper`` (shinya2013 eq. 27, the
+    equal-weight mean) or ``radiance`` (weighted by the plane-parallel single-scattering radiance from each)."""
+    g_orders: bool = False
+    """``--g-orders``: G once per order of scattering, G s / (1 - G (1 - s)) with s the exact slab's once-scattered
+    share (lighting.gfactor); False: G once (shinya2013 eq. 28). The sppGFactor grid stays G."""
+    g_resolution: int = 0
+    """``--g-resolution``: voxels along the longest foliage edge of a coarse leaf-area density grid through which
+    the depths of the G-factor alone are measured (shinya2013 sec. 5.1-5.2 keeps G on a ~16³ grid); 0: G from
+    each leaf's own depths, the same as the plane-parallel part (lighting.gfactor, "Depth noise")."""
     depth: str = "auto"
     """``rays``: count leaf crossings; ``grid``: integrate the leaf-area density, own leaf removed (module docstring);
     ``auto``: ``grid`` when the direct light comes from shadow rays (``--direct rays``, the default), else rays up to
@@ -132,6 +143,10 @@ class SppParams:
         check_gather(self.gather)
         if self.model is not None and self.model not in gf.MODELS:
             raise UsageError(f"--model must be one of {', '.join(gf.MODELS)}, got {self.model!r}.")
+        if self.g_resolution != 0 and not (4 <= self.g_resolution <= 512):
+            raise UsageError(f"--g-resolution must be 0 (per leaf) or between 4 and 512, got {self.g_resolution}.")
+        if self.g_weights not in gf.G_WEIGHTS:
+            raise UsageError(f"--g-weights must be one of {', '.join(gf.G_WEIGHTS)}, got {self.g_weights!r}.")
         if self.model == "exact" and self.refine:
             raise UsageError("--refine refines shinya2013's closed form (appendix A.1); use it with --model spp.")
 
@@ -157,6 +172,12 @@ class SppBake:
     """Wall time of the depths (own and neighbours) of all instances."""
     density_source: str = "computed"
     """Where the leaf-area density came from: ``computed`` or ``input`` (see ``density_for_bake``)."""
+
+
+def _phases(optics: LeafOptics) -> list:
+    """The canopy phase function per channel, as :func:`~foliage_tools.lighting.gfactor.solve_sppg` takes it."""
+    return [canopy_bilambertian_phase(reflectance=float(r), transmittance=float(t))
+            for r, t in zip(optics.reflectance, optics.transmittance)]
 
 
 def _is_similarity(m: np.ndarray) -> bool:
@@ -279,6 +300,7 @@ def bake_prototype(
     start = time.perf_counter()
     dirs_world = gf.sample_directions(params.directions, up=up_world)
     results, n_neighbours, t_depths = [], 0, 0.0
+    coarse = compute_density(proto, DensityParams(resolution=params.g_resolution, method="area")) if params.g_resolution else None
     for k, m in enumerate(placements):
         sun_local = to_prototype_space(sun.direction, m)
         up_local = to_prototype_space(up_world, m)
@@ -293,10 +315,14 @@ def bake_prototype(
         if neighbours is not None and instances:
             extra, count = neighbours.depths(instances[k], _world_points(proto.leaves.centers, m), sun.direction, dirs_world)
             n_neighbours += count
+        g_depths = None
+        if coarse is not None:
+            g_depths = depth_mod.depth_samples(coarse.density, coarse.grid, sun_direction=sun_local, directions=dirs_local,
+                                               points=proto.leaves.centers)
         t_depths += time.perf_counter() - t0
         results.append(gf.solve_sppg(
             own, normals=proto.leaves.normals, optics=params.optics, sun_direction=sun_local, directions=dirs_local, up=up_local,
-            neighbour_depths=extra, params=gf.SPPGParams(refine=params.refine, model=params.model), **vis,
+            neighbour_depths=extra, params=gf.SPPGParams(refine=params.refine, model=params.model, g_weights=params.g_weights, g_orders=params.g_orders), g_depths=g_depths, **vis,
         ))
     result = _mean_result(results)
     # cells of the prototype alone, as seen by its first instance
@@ -305,8 +331,12 @@ def bake_prototype(
     up_local = to_prototype_space(up_world, m)
     dirs_local = np.array([to_prototype_space(d, m) for d in dirs_world])
     cells = depth_mod.depth_samples(dens.density, dens.grid, sun_direction=sun_local, directions=dirs_local)
-    g_cells = gf.gfactor(boundary_depth=cells.sample_depth, directions=dirs_local, light_direction=sun_local,
-                         light_depth=cells.sun_depth, light_thickness=cells.sun_thickness, up=up_local)
+    g_kw = dict(boundary_depth=cells.sample_depth, directions=dirs_local, light_direction=sun_local,
+                light_depth=cells.sun_depth, light_thickness=cells.sun_thickness, up=up_local)
+    if params.g_weights == "paper":
+        g_cells = gf.gfactor(**g_kw)
+    else:  # the mean over the channels' G, as SPPGResult.gfactor
+        g_cells = np.mean([gf.gfactor(**g_kw, weights="radiance", phase=ph) for ph in _phases(params.optics)], axis=0)
     shape = dens.grid.shape
     return SppBake(
         index, result,
@@ -454,6 +484,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         "directions": params.directions, "cells": int(sum(p["cells"] for p in protos)), "refine": params.refine,
         "depth": params.depth, "rays_per_leaf": params.rays_per_leaf if params.depth == "rays" else None,
         "gfactor": params.gfactor, "model": gf.SPPGParams(refine=params.refine, model=params.model).resolved_model,
+        "g_weights": params.g_weights, "g_resolution": params.g_resolution, "g_orders": params.g_orders,
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},

@@ -66,6 +66,26 @@ def test_grid_depth_path_is_a_flag_and_bad_values_are_usage_errors(tmp_path):
     assert r.returncode == 2 and "--rays-per-leaf" in r.stderr
 
 
+def test_g_factor_options_are_flags_recorded_in_the_report_and_bad_values_are_usage_errors(tmp_path):
+    """--g-weights, --g-resolution and --g-orders reach the bake (the report says which ran, and they change G) or
+    exit 2."""
+    runs = {}
+    for args in ((), ("--g-weights", "radiance"), ("--g-resolution", "8"), ("--g-orders",)):
+        r = foliage("spp", EXAMPLE, "-o", tmp_path / "o.usda", "--resolution", "16", "--json", *args)
+        assert r.returncode == 0, r.stderr
+        runs[args] = json.loads(r.stdout)["stats"]
+    assert (runs[()]["g_weights"], runs[()]["g_resolution"], runs[()]["g_orders"]) == ("paper", 0, False)
+    assert runs[("--g-orders",)]["g_orders"] is True
+    assert runs[("--g-weights", "radiance")]["g_weights"] == "radiance"
+    assert runs[("--g-resolution", "8")]["g_resolution"] == 8
+    means = {k: v["prototypes"][0]["gfactor_mean"] for k, v in runs.items()}
+    # each option changes G on this crown (measured differences of 0.02-0.1 in mean G at these settings)
+    assert len({round(m, 4) for m in means.values()}) == 4, means
+    for bad in (("--g-weights", "uniform"), ("--g-resolution", "2")):
+        r = foliage("spp", EXAMPLE, "-o", tmp_path / "o.usda", *bad)
+        assert r.returncode == 2 and bad[0] in r.stderr, r.stderr
+
+
 def test_sun_below_the_horizon_is_a_usage_error(tmp_path):
     r = foliage("spp", EXAMPLE, "-o", tmp_path / "o.usda", "--sun", "0,-10", "--resolution", "8")
     assert r.returncode == 2 and "below the horizon" in r.stderr

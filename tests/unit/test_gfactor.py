@@ -86,10 +86,12 @@ def test_sky_weights_give_unit_horizontal_irradiance():
 # --------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("weights", gf.G_WEIGHTS)
 @pytest.mark.parametrize("elevation", [90.0, 65.0, 40.0])
-def test_gfactor_is_one_inside_an_infinite_slab(elevation):
+def test_gfactor_is_one_inside_an_infinite_slab(elevation, weights):
     """Horizontally infinite uniform slab: every ray's real boundary is the slab face (h = L), G = 1.
 
+    With either weighting: every F_v is 1, and any weighted mean of ones is 1.
     Exact up to rounding: the grid integration is exact for the piecewise-
     constant density and the cell centres sit mid-layer.
     """
@@ -100,10 +102,12 @@ def test_gfactor_is_one_inside_an_infinite_slab(elevation):
     g = gf.gfactor(
         boundary_depth=s.sample_depth, directions=dirs, light_direction=sun,
         light_depth=s.sun_depth, light_thickness=s.sun_thickness,
+        weights=weights, phase=canopy_bilambertian_phase(reflectance=0.45, transmittance=0.1),
     )
     assert np.allclose(g, 1.0, atol=1e-12)
     # and SPPG = SPP there
-    res = gf.solve_sppg(s, normals=np.tile([0.0, 0.0, 1.0], (len(column), 1)), optics=OPTICS, sun_direction=sun, directions=dirs)
+    res = gf.solve_sppg(s, normals=np.tile([0.0, 0.0, 1.0], (len(column), 1)), optics=OPTICS, sun_direction=sun, directions=dirs,
+                        params=gf.SPPGParams(g_weights=weights))
     assert np.allclose(res.sppg.scattered, res.spp.scattered, rtol=1e-12)
     assert np.allclose(res.sppg.sky_scattered, res.spp.sky_scattered, rtol=1e-12)
 
@@ -540,3 +544,324 @@ def test_mirror_symmetric_canopy_under_a_zenith_sun_gives_mirror_symmetric_light
         for name in ("direct", "scattered", "sky_direct", "sky_scattered"):
             x, y = getattr(getattr(a, method), name), getattr(getattr(b, method), name)
             np.testing.assert_allclose(y, x, rtol=1e-12, atol=1e-14 * max(np.abs(x).max(), 1e-300), err_msg=f"{method}.{name}")
+
+
+# --------------------------------------------------------------------------
+# radiance-weighted G (SPPGParams.g_weights = "radiance") and G's own depths
+# --------------------------------------------------------------------------
+
+_BOX_LO = np.array([-2.0, -2.0, 0.0])
+_BOX_HI = np.array([2.0, 2.0, 2.0])
+
+
+def _box_exit(point, dirs):
+    """Distance from ``point`` to the surface of the box [-2, 2]² × [0, 2] along each unit direction."""
+    v = np.atleast_2d(dirs)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(v > 0, (_BOX_HI - point) / v, np.where(v < 0, (_BOX_LO - point) / v, np.inf))
+    return t.min(axis=1)
+
+
+def _pp_single_scattering(v_n, mu0, d0, upto):
+    """∫_0^upto e^{-l} e^{-(d0 - l v_n/μ0)} dl by 48-node Gauss-Legendre (upto capped at 60: the rest is < e^{-60}
+    of it wherever upto may be infinite, i.e. c = 1 - v_n/μ0 >= 1)."""
+    x, w = np.polynomial.legendre.leggauss(48)
+    b = np.minimum(np.asarray(upto, dtype=np.float64), 60.0)
+    ll = 0.5 * b[..., None] * (x + 1.0)
+    return 0.5 * b * (np.exp(-ll - (d0 - ll * v_n / mu0)) @ w)
+
+
+def test_radiance_weighted_g_is_the_present_share_of_the_plane_parallel_single_scattering():
+    """G_rad against a brute-force integral over the sphere of the single scattering that is really there.
+
+    A point near the side of a box of unit extinction, light at 40° elevation.
+    Independent answer: ∫ p(l·v) ∫_0^{min(h, L)} e^{-l} e^{-(d0 - l v_n/μ0)} dl dΩ over the same integral to L
+    (the plane-parallel slab the light's depth defines), with a Gauss-Legendre × midpoint product rule on the
+    sphere (64 cosines per hemisphere, 128 azimuths) and Gauss-Legendre along each ray, h from the box geometry.
+    The code gets the same h along 4096 Fibonacci directions. Bound 5e-5: the code's quadrature moves by 7e-6
+    from 4096 to 16384 directions and the brute force by 2e-6 from 64 × 128 to 256 × 512 (measured), while the
+    two weightings differ by 1.2e-2 here; so eq. (27)'s mean must fail this comparison, and it must match the
+    plain solid-angle mean of F_v instead (the same integrand without the weights).
+    """
+    point = np.array([1.5, 0.3, 1.1])
+    e, a = math.radians(40.0), math.radians(20.0)
+    light = np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+    mu0 = light[2]
+    d0 = float(_box_exit(point, light)[0])
+    w0 = d0 + float(_box_exit(point, -light)[0])
+    phase = canopy_bilambertian_phase(reflectance=0.6, transmittance=0.2)
+
+    x, wx = np.polynomial.legendre.leggauss(64)
+    n_az = 128
+    phi = (np.arange(n_az) + 0.5) * (2.0 * math.pi / n_az)
+    num = den = mean_f = 0.0
+    for lo, hi in ((-1.0, 0.0), (0.0, 1.0)):
+        for mu, wmu in zip(0.5 * (hi - lo) * (x + 1.0) + lo, 0.5 * (hi - lo) * wx):
+            s = math.sqrt(1.0 - mu * mu)
+            v = np.stack([s * np.cos(phi), s * np.sin(phi), np.full(n_az, mu)], axis=1)
+            h = _box_exit(point, v)
+            length = mu0 * d0 / mu if mu > 0 else mu0 * (w0 - d0) / -mu
+            full = _pp_single_scattering(mu, mu0, d0, np.full(n_az, length))
+            present = _pp_single_scattering(mu, mu0, d0, np.minimum(h, length))
+            p = phase(np.clip(v @ light, -1.0, 1.0))
+            num += wmu * np.sum(p * present)
+            den += wmu * np.sum(p * full)
+            mean_f += wmu * np.sum(present / full) / (2.0 * n_az)
+    want_rad, want_paper = num / den, mean_f
+
+    dirs = gf.sample_directions(4096)
+    kw = dict(boundary_depth=_box_exit(point, dirs)[None, :], directions=dirs, light_direction=light,
+              light_depth=[d0], light_thickness=[w0])
+    g_rad = float(gf.gfactor(**kw, weights="radiance", phase=phase)[0])
+    g_paper = float(gf.gfactor(**kw)[0])
+    assert g_rad == pytest.approx(want_rad, abs=5e-5)
+    assert g_paper == pytest.approx(want_paper, abs=5e-5)
+    assert abs(g_paper - want_rad) > 100 * 5e-5  # the test can tell the two apart
+
+
+def _g_rad(dirs, h, light, d0, w0, phase=None):
+    return gf.gfactor(boundary_depth=np.atleast_2d(h), directions=dirs, light_direction=light,
+                      light_depth=np.atleast_1d(d0), light_thickness=np.atleast_1d(w0), weights="radiance", phase=phase)
+
+
+def test_radiance_weighted_g_hard_cases():
+    """Horizontal directions, a grazing light, h = 0, L = 0, infinite depths: finite, and equal to the definition.
+
+    Three directions, exactly horizontal (v_n = 0: L = ∞), straight down and straight up, isotropic phase. The
+    expected G = Σ w F / Σ w is built from the numerical integrals of :func:`_pp_single_scattering` (48-node
+    Gauss-Legendre on smooth exponentials, ~1e-15 relative), hence rel 1e-10.
+    """
+    mu0 = 0.5
+    light = np.array([math.sqrt(1.0 - mu0 * mu0), 0.0, mu0])
+    dirs = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [0.0, 0.0, 1.0]])
+    d0, w0 = 1.2, 3.0
+    lengths = np.array([np.inf, mu0 * (w0 - d0), mu0 * d0])
+    h = np.array([0.8, 0.5, 5.0])
+    full = np.array([_pp_single_scattering(vn, mu0, d0, np.array(L)) for vn, L in zip(dirs[:, 2], lengths)])
+    present = np.array([_pp_single_scattering(vn, mu0, d0, np.array(min(hh, L))) for vn, hh, L in zip(dirs[:, 2], h, lengths)])
+    want = float(np.sum(present) / np.sum(full))
+    assert float(_g_rad(dirs, h, light, d0, w0)[0]) == pytest.approx(want, rel=1e-10)
+
+    # h = 0 toward every direction (a leaf on the medium's surface all round): nothing of the slab is there
+    assert float(_g_rad(dirs, np.zeros(3), light, d0, w0)[0]) == 0.0
+    # no medium along the light either way (d0 = w0 = 0): every L = 0 toward up and down, no weight anywhere
+    # but the horizontal ray's (L = ∞, e^{-d0} = 1), whose h = 0.8 then decides: F = 1 - e^{-0.8}
+    assert float(_g_rad(dirs, h, light, 0.0, 0.0)[0]) == pytest.approx(-math.expm1(-0.8), rel=1e-12)
+    # ... and without the horizontal ray no direction carries plane-parallel light: G = 1 (eq. (27)'s mean of ones)
+    assert float(_g_rad(dirs[1:], h[1:], light, 0.0, 0.0)[0]) == 1.0
+    # infinite depths: finite, in [0, 1]
+    for dd, ww in ((math.inf, math.inf), (1.0, math.inf), (800.0, 1600.0)):
+        g = float(_g_rad(dirs, h, light, dd, ww)[0])
+        assert math.isfinite(g) and 0.0 <= g <= 1.0
+    # e^{-800} underflows, but the weights are taken in logs: the same G as at a depth where it does not, for
+    # directions whose weights all carry the same e^{-d0} (horizontal and down; F does not depend on d0 there)
+    g_deep = float(_g_rad(dirs[:2], h[:2], light, 800.0, 801.0)[0])
+    g_mid = float(_g_rad(dirs[:2], h[:2], light, 8.0, 9.0)[0])
+    assert g_deep == pytest.approx(g_mid, rel=1e-12)
+
+    # a grazing light, μ0 -> 0 at a fixed slant depth: every weight vanishes like μ0 (upward: L = μ0 d0 / v_n,
+    # downward: 1/c ~ μ0/|v_n|), so G tends to a limit instead of 0/0; 16 Fibonacci directions, h from the box
+    point = np.array([0.5, 0.0, 1.0])
+    fib = gf.sample_directions(16)
+    values = []
+    for m in (1e-6, 1e-8, 1e-10):
+        grazing = np.array([math.sqrt(1.0 - m * m), 0.0, m])
+        values.append(float(_g_rad(fib, _box_exit(point, fib), grazing, 3.0, 5.0)[0]))
+    assert all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values)
+    assert values[1] == pytest.approx(values[2], rel=1e-6)  # the limit's O(μ0) terms are 1e-8 here
+
+
+def test_g_weights_option_and_its_validation():
+    """``SPPGParams.g_weights`` names the paper's eq. (27) and the radiance weighting, and nothing else."""
+    assert gf.G_WEIGHTS == ("paper", "radiance")
+    assert gf.SPPGParams().g_weights == "paper"
+    with pytest.raises(ValueError, match="g_weights"):
+        gf.SPPGParams(g_weights="uniform")
+    with pytest.raises(ValueError, match="weights"):
+        gf.gfactor(boundary_depth=[[1.0]], directions=[[0.0, 0.0, 1.0]], light_direction=[0.0, 0.0, 1.0],
+                   light_depth=[0.5], light_thickness=[1.0], weights="uniform")
+
+
+def test_radiance_g_per_channel_uses_each_channels_phase():
+    """With r ≠ t the phase, hence G_rad, differs per channel; sppg = G_c × spp per channel c.
+
+    Expected per channel: :func:`gfactor` with that channel's phase (the definition), so exact to rounding;
+    ``SPPGResult.gfactor`` is their mean.
+    """
+    grid = GridSpec(origin=(0.0, 0.0, 0.0), voxel_size=1.0, shape=(9, 9, 4))
+    rho = np.full(grid.shape, 0.7)
+    dirs = gf.sample_directions(16)
+    sun = sun_at(55.0)
+    pts = grid.index_to_world(np.array([[1, 4, 2], [4, 4, 1], [7, 2, 3]]))
+    s = dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs, points=pts)
+    optics = LeafOptics((0.5, 0.1, 0.02), (0.05, 0.3, 0.02))
+    res = gf.solve_sppg(s, normals=np.tile([0.0, 0.0, 1.0], (3, 1)), optics=optics, sun_direction=sun, directions=dirs,
+                        params=gf.SPPGParams(g_weights="radiance", sky=False))
+    gs = []
+    for c in range(3):
+        ph = canopy_bilambertian_phase(reflectance=optics.reflectance[c], transmittance=optics.transmittance[c])
+        gs.append(gf.gfactor(boundary_depth=s.sample_depth, directions=dirs, light_direction=sun, light_depth=s.sun_depth,
+                             light_thickness=s.sun_thickness, weights="radiance", phase=ph))
+    gs = np.stack(gs, axis=1)
+    np.testing.assert_allclose(res.sppg.scattered, gs * res.spp.scattered, rtol=1e-13)
+    np.testing.assert_allclose(res.gfactor, gs.mean(axis=1), rtol=1e-13)
+    # mostly-reflecting red against mostly-transmitting green: their G differ (0.086 at most here), so a G shared
+    # by the channels would fail the first assertion by far more than its rounding bound
+    assert np.abs(gs[:, 0] - gs[:, 1]).max() > 0.01
+
+
+def test_g_depths_serve_g_only():
+    """``g_depths``: G from them, the plane-parallel part still from ``depths``.
+
+    A point near the side of a finite block (G < 1 from its own depths) given the depths of a horizontally
+    infinite slab for G: G = 1 exactly (every F_v = 1), so sppg = spp, and spp is the same as without g_depths.
+    """
+    grid = GridSpec(origin=(0.0, 0.0, 0.0), voxel_size=1.0, shape=(9, 9, 4))
+    rho = np.full(grid.shape, 1.0)
+    dirs = gf.sample_directions(16)
+    sun = sun_at(60.0)
+    pt = grid.index_to_world(np.array([[0, 4, 2]]))
+    own = dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs, points=pt)
+    wgrid, wrho, column = wide_slab(layers=4)
+    flat = dp.depth_samples(wrho, wgrid, sun_direction=sun, directions=dirs, points=column[2:3])
+    kw = dict(normals=[[0.0, 0.0, 1.0]], optics=OPTICS, sun_direction=sun, directions=dirs)
+    plain = gf.solve_sppg(own, **kw)
+    assert plain.gfactor[0] < 0.9
+    same = gf.solve_sppg(own, **kw, g_depths=own)
+    np.testing.assert_array_equal(same.sppg.scattered, plain.sppg.scattered)
+    other = gf.solve_sppg(own, **kw, g_depths=flat)
+    assert other.gfactor[0] == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_array_equal(other.spp.scattered, plain.spp.scattered)
+    np.testing.assert_allclose(other.sppg.scattered, other.spp.scattered, rtol=1e-12)
+    np.testing.assert_allclose(other.sppg.sky_scattered, other.spp.sky_scattered, rtol=1e-12)
+    with pytest.raises(ValueError, match="g_depths"):
+        gf.solve_sppg(own, **kw, g_depths=dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs[:8], points=pt))
+
+
+def test_depth_noise_alone_lowers_g_and_smoother_depths_lift_it_back():
+    """A statistically uniform, horizontally wide canopy with random voxel densities: its G should be 1.
+
+    Every ray from the central column leaves through the top or the bottom (as in :func:`wide_slab`), so the only
+    departure from plane-parallel is the noise of the depths. Densities Poisson(1) per unit voxel (about the 64-voxel
+    grid of the README's layer, under one card per voxel). F_v is concave where h ~ L, so the noise lowers G:
+    1 - G is first order in the depth noise (E[max(0, L - h)] = E|h - L|/2 for an unbiased h), so the 0.01 below
+    is a floor on a first-order effect at a relative depth noise of ~20-50 %. Averaging the density over 4³-voxel
+    blocks (the coarse grid of ``--g-resolution``) shrinks each block's noise 8-fold, and a path's by at least
+    2 (it crosses a quarter as many blocks, each 1/8 as noisy): the deficit must then at least halve.
+    """
+    layers, half = 8, 64
+    n = 2 * half
+    grid = GridSpec(origin=(0.0, 0.0, 0.0), voxel_size=1.0, shape=(n, n, layers))
+    rng = np.random.default_rng(7)
+    rho = rng.poisson(1.0, grid.shape).astype(np.float64)
+    coarse_grid = GridSpec(origin=(0.0, 0.0, 0.0), voxel_size=4.0, shape=(n // 4, n // 4, layers // 4))
+    coarse = rho.reshape(n // 4, 4, n // 4, 4, layers // 4, 4).mean(axis=(1, 3, 5))
+    xy = rng.uniform(half - 8.0, half + 8.0, (400, 2))
+    pts = np.column_stack([xy, rng.uniform(0.5, layers - 0.5, 400)])
+    dirs = gf.sample_directions(16)
+    sun = sun_at(60.0)
+    deficits = {}
+    for name, (r, g) in {"fine": (rho, grid), "coarse": (coarse, coarse_grid)}.items():
+        s = dp.depth_samples(r, g, sun_direction=sun, directions=dirs, points=pts)
+        for w in gf.G_WEIGHTS:
+            deficits[name, w] = 1.0 - float(gf.gfactor(boundary_depth=s.sample_depth, directions=dirs, light_direction=sun,
+                                                        light_depth=s.sun_depth, light_thickness=s.sun_thickness,
+                                                        weights=w).mean())
+    for w in gf.G_WEIGHTS:
+        assert deficits["fine", w] > 0.01
+        assert deficits["coarse", w] < 0.5 * deficits["fine", w]
+
+
+# --------------------------------------------------------------------------
+# G once per order of scattering (SPPGParams.g_orders)
+# --------------------------------------------------------------------------
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.0, 1.0), st.floats(0.0, 1.0), st.integers(1, 200))
+def test_orders_g_is_the_sum_of_g_to_the_n_over_a_geometric_series_of_orders(g, share, terms):
+    """G s / (1 - G (1 - s)) = Σ_n G^n E_n / Σ_n E_n for E_n ∝ (1 - s)^{n-1} (the definition, summed directly).
+
+    The direct sum runs to 4000 orders; its tail beyond is (1 - s)^4000 of the total, so the comparison holds to
+    1e-9 wherever (1 - s)^4000 < 1e-10, i.e. s > 6e-3 (below that both sides are compared at s = 6e-3's bound).
+    """
+    share = max(share, 6e-3)
+    n = np.arange(1, 4001)
+    e_n = (1.0 - share) ** (n - 1)
+    want = float(np.sum(g**n * e_n) / np.sum(e_n))
+    assert float(gf._orders_g(np.array(g), np.array(share))) == pytest.approx(want, abs=1e-9)
+
+
+def test_orders_g_limits():
+    """G = 1 stays 1 (plane-parallel), s = 1 (single scattering only) leaves G, G = 0 stays 0; never above G."""
+    g = np.linspace(0.0, 1.0, 11)
+    assert np.all(gf._orders_g(np.ones(5), np.linspace(0.0, 1.0, 5)) == 1.0)  # incl. s = 0, G = 1: 1, not 0/0
+    np.testing.assert_allclose(gf._orders_g(g, np.ones_like(g)), g, rtol=0, atol=1e-15)
+    assert np.all(gf._orders_g(np.zeros(5), np.linspace(0.0, 1.0, 5)) == 0.0)
+    for s in (0.05, 0.3, 0.8):
+        assert np.all(gf._orders_g(g, np.full_like(g, s)) <= g + 1e-15)
+
+
+def test_once_scattered_share_against_the_isotropic_slabs_first_order():
+    """The exact slab's once-scattered E of a horizontal leaf against the closed form of single scattering.
+
+    Isotropic phase, albedo 0.9, sun cosine 0.6, slab τ = 2: a beam of unit perpendicular irradiance makes the
+    once-scattered source S(t') = ω e^{-t'/μ0} / (4π) per unit vertical optical depth and steradian, and both faces
+    of a horizontal leaf at depth t receive F↓ + F↑ = 2π ∫_0^τ S(t') E2(|t - t'|) dt' (E2 the exponential
+    integral). s × E must equal that. Bound 3e-3: the slab table's stated interpolation error (slab_table; the
+    8-stream quadrature adds less here), measured 0.7e-4 … 8.7e-4 at these depths.
+    """
+    from scipy.integrate import quad
+
+    from foliage_tools.lighting.phase import hg_phase
+    from foliage_tools.lighting.slab_table import leaf_weights
+
+    mu0, tau, omega = 0.6, 2.0, 0.9
+    t = np.array([0.1, 0.5, 1.0, 1.5, 1.9])
+    weights = leaf_weights(np.ones(len(t)), gf.EXACT_STREAMS)
+    albedo = np.array([omega])
+    phases = [hg_phase(0.0)]
+    total = gf._exact_leaf_irradiance(t / mu0, np.full(len(t), tau / mu0), mu0, weights, albedo, phases)
+    once = gf._once_scattered_share(t / mu0, np.full(len(t), tau / mu0), mu0, weights, albedo, phases, total) * total
+    want = [0.5 * omega * (quad(lambda x, tt=tt: math.exp(-x / mu0) * expn(2, abs(tt - x)), 0.0, tt)[0]
+                           + quad(lambda x, tt=tt: math.exp(-x / mu0) * expn(2, abs(tt - x)), tt, tau)[0]) for tt in t]
+    np.testing.assert_allclose(once[:, 0], want, rtol=3e-3)
+    # and the test is in the regime g_orders is for: most of this bright slab's light is scattered more than once
+    # (s measured 0.21-0.41 here), so a share stuck at 1 (G applied once) would fail the line above by far
+    assert np.all(once[:, 0] < 0.6 * total[:, 0])
+
+
+def test_g_orders_in_solve_sppg():
+    """sppg = G_orders(G, s) × spp per channel, with s from the exact slab for either model; nothing else changes.
+
+    Expected from the two helpers tested above (the definition), so to rounding. Also: with ``g_orders`` in an
+    infinite slab G = 1 stays 1, so SPPG is still the exact solution there.
+    """
+    grid = GridSpec(origin=(0.0, 0.0, 0.0), voxel_size=1.0, shape=(9, 9, 4))
+    rho = np.full(grid.shape, 0.7)
+    dirs = gf.sample_directions(16)
+    sun = sun_at(55.0)
+    pts = grid.index_to_world(np.array([[1, 4, 2], [4, 4, 1], [7, 2, 3]]))
+    s = dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs, points=pts)
+    kw = dict(normals=np.tile([0.0, 0.6, 0.8], (3, 1)), optics=OPTICS, sun_direction=sun, directions=dirs)
+    for model in gf.MODELS:
+        base = gf.solve_sppg(s, **kw, params=gf.SPPGParams(model=model))
+        res = gf.solve_sppg(s, **kw, params=gf.SPPGParams(model=model, g_orders=True))
+        np.testing.assert_array_equal(res.spp.scattered, base.spp.scattered)
+        np.testing.assert_array_equal(res.sppg.direct, base.sppg.direct)
+        from foliage_tools.lighting.slab_table import leaf_weights
+
+        phases = [canopy_bilambertian_phase(reflectance=r, transmittance=t)
+                  for r, t in zip(OPTICS.reflectance, OPTICS.transmittance)]
+        w = leaf_weights(np.full(3, 0.8), gf.EXACT_STREAMS)
+        exact = gf._exact_leaf_irradiance(s.sun_depth, s.sun_thickness, sun[2], w, np.asarray(OPTICS.albedo), phases)
+        share = gf._once_scattered_share(s.sun_depth, s.sun_thickness, sun[2], w, np.asarray(OPTICS.albedo), phases, exact)
+        g_n = gf._orders_g(base.gfactor[:, None], share)
+        np.testing.assert_allclose(res.sppg.scattered, g_n * base.spp.scattered, rtol=1e-12)
+        assert np.all(res.sppg.scattered <= base.sppg.scattered * (1 + 1e-12))
+    grid, rho, column = wide_slab()
+    s = dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs, points=column)
+    res = gf.solve_sppg(s, normals=np.tile([0.0, 0.0, 1.0], (len(column), 1)), optics=OPTICS, sun_direction=sun,
+                        directions=dirs, params=gf.SPPGParams(g_orders=True))
+    np.testing.assert_allclose(res.sppg.scattered, res.spp.scattered, rtol=1e-12)
+    np.testing.assert_allclose(res.sppg.sky_scattered, res.spp.sky_scattered, rtol=1e-12)

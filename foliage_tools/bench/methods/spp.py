@@ -11,15 +11,16 @@ from foliage_tools.pipeline.report import Silent
 from foliage_tools.pipeline.spp import SppParams, bake_spp
 
 
-def _runner(which: str, model: str):
+def _runner(which: str, model: str, g_weights: str = SppParams.g_weights, **g_options):
     def run(ctx: BenchContext) -> MethodOutput:
-        params = SppParams(optics=ctx.optics, sun=(ctx.sun.azimuth, ctx.sun.elevation), model=model)
+        params = SppParams(optics=ctx.optics, sun=(ctx.sun.azimuth, ctx.sun.elevation), model=model, g_weights=g_weights,
+                           **g_options)
         bakes = bake_spp(ctx.scene, ctx.sun, params, ctx.warnings, Silent())
         irr = {b.index: getattr(b.result, which) for b in bakes}
         return MethodOutput(
             e_direct={i: v.direct for i, v in irr.items()},
             e_scattered={i: v.scattered for i, v in irr.items()},
-            stats={"gfactor_mean": [float(b.result.gfactor.mean()) for b in bakes], "model": model},
+            stats={"gfactor_mean": [float(b.result.gfactor.mean()) for b in bakes], "model": model, "g_weights": g_weights, **g_options},
         )
 
     return run
@@ -30,3 +31,8 @@ register("spp", "exact plane-parallel slab per leaf, depths from ray crossings (
 register("sppg", "exact plane-parallel slab per leaf with the G-factor (shinya2013 eqs. 23-28, A.3)")(_runner("sppg", "exact"))
 register("spp-paper", "shinya2013's simplified plane-parallel closed form (eqs. 17-22, re-derived)")(_runner("spp", "spp"))
 register("sppg-paper", "shinya2013's SPP closed form with the G-factor (the paper's SPPG)")(_runner("sppg", "spp"))
+register("sppg-radiance", "exact plane-parallel slab per leaf with the radiance-weighted G-factor (--g-weights radiance)")(
+    _runner("sppg", "exact", "radiance"))
+register("sppg-paper-radiance", "shinya2013's SPP closed form with the radiance-weighted G-factor")(_runner("sppg", "spp", "radiance"))
+register("sppg-g16-orders", "exact slab with G from a 16-voxel grid, once per order of scattering (--g-resolution 16 --g-orders)")(
+    _runner("sppg", "exact", g_resolution=16, g_orders=True))
