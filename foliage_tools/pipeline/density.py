@@ -96,10 +96,27 @@ def density_for_bake(scene: Scene, proto: Prototype, params: DensityParams, warn
         density, wood = found
         return DensityResult(grid, density, wood, float(proto.leaves.areas.sum()), float(density.sum() * grid.voxel_volume),
                              time.perf_counter() - t0, source="input")
+    if why is None and not proto.editable:
+        why = _legacy_volume(Path(scene.path), proto)
     if why:
         warnings.append(f"prototype <{proto.path}>: the input's density grid was not reused ({why}); it was voxelized anew. "
                         "Run `foliage density` with the same --resolution as this stage to reuse it.")
     return compute_density(proto, params)
+
+
+def _legacy_volume(path: Path, proto: Prototype) -> str | None:
+    """Why a native-instance prototype's volume at the layout of layers before 2026-12-02 (``/FoliageBakes/<name>``,
+    outside the default prim) is not reused, or None when the input has none there."""
+    from foliage_tools.scene.stored import volume_fields
+    from foliage_tools.scene.write import input_files
+
+    if not any(f.suffix == ".vdb" for f in input_files(path)):
+        return None
+    old = f"/FoliageBakes/{re.sub(r'[^A-Za-z0-9_]', '_', proto.name)}/FoliageLighting"
+    if volume_fields(path, old, ("density",)) is None:
+        return None
+    return (f"its volume is at <{old}>, where layers written before 2026-12-02 put it; bakes now place it over "
+            "every instance from a class under the default prim")
 
 
 def _stored_density(path: Path, volume_at: str, grid: GridSpec) -> tuple[tuple[np.ndarray, np.ndarray] | None, str | None]:

@@ -255,3 +255,32 @@ def test_a_later_stage_authors_only_the_placements_that_changed(tmp_path):
         r = cache.ComputeWorldBound(volumes[inst]).ComputeAlignedRange()
         lo, hi = np.array(r.GetMin()), np.array(r.GetMax())
         assert np.all(leaves[inst] >= lo - 1e-4) and np.all(leaves[inst] <= hi + 1e-4), inst
+
+
+def test_a_volume_at_the_old_layout_is_named_when_it_is_not_reused(tmp_path):
+    """Layers written before the placed volumes kept a native prototype's grids at /FoliageBakes/<name>; a stage on
+    such a layer voxelizes again (the grids are not where it reads them) and says so, naming the old prim, instead
+    of silently doing the work twice."""
+    from foliage_tools.scene.read import read_scene
+    from foliage_tools.scene.vdb import Grid
+    from foliage_tools.scene.write import LayerEdits, VolumeEdit, stage_metadata, write_layer
+
+    forest = EXAMPLES / "forest_small.usda"
+    scene, _ = read_scene(forest)
+    proto = next(p for p in scene.prototypes if not p.editable)
+    old = f"/FoliageBakes/{re.sub(r'[^A-Za-z0-9_]', '_', proto.name)}/FoliageLighting"
+    grids = tuple(Grid(n, np.ones((4, 4, 4), dtype=np.float32), (0.0, 0.0, 0.0), 0.5) for n in ("density", "woodFraction"))
+    legacy = tmp_path / "legacy.usda"
+    write_layer(forest, legacy, LayerEdits(volumes=[VolumeEdit(path=old, vdb_file=tmp_path / "legacy.vdb", grids=grids,
+                                                               attributes={}, purpose="default")]),
+                input_stage_meta=stage_metadata(forest))
+    report = run_lb(legacy, tmp_path / "lb.usda", LBBakeParams(optics=parse_leaf_optics(None), resolution=RESOLUTION,
+                                                                direct=DirectChoice(mode="volume")))
+    said = [w for w in report.warnings if "not reused" in w]
+    assert len(said) == 1 and f"<{old}>" in said[0] and "before 2026-12-02" in said[0]
+    # once `foliage density` has written the current layout over it, its grids are reused without the warning
+    run_density(legacy, tmp_path / "d.usda", DensityParams(resolution=RESOLUTION))
+    fresh = run_lb(tmp_path / "d.usda", tmp_path / "lb2.usda", LBBakeParams(
+        optics=parse_leaf_optics(None), resolution=RESOLUTION, direct=DirectChoice(mode="volume")))
+    assert not [w for w in fresh.warnings if "not reused" in w]
+    assert [p["density"] for p in fresh.stats["prototypes"]] == ["input"]
