@@ -682,18 +682,22 @@ def test_g_weights_option_and_its_validation():
                    light_depth=[0.5], light_thickness=[1.0], weights="uniform")
 
 
+def _three_points_in_a_box():
+    """Grid depths of three points in a uniform 9 x 9 x 4 box (density 0.7) under a sun at 55°: (samples, sun, dirs)."""
+    grid = GridSpec(origin=(0.0, 0.0, 0.0), voxel_size=1.0, shape=(9, 9, 4))
+    dirs = gf.sample_directions(16)
+    sun = sun_at(55.0)
+    pts = grid.index_to_world(np.array([[1, 4, 2], [4, 4, 1], [7, 2, 3]]))
+    return dp.depth_samples(np.full(grid.shape, 0.7), grid, sun_direction=sun, directions=dirs, points=pts), sun, dirs
+
+
 def test_radiance_g_per_channel_uses_each_channels_phase():
     """With r ≠ t the phase, hence G_rad, differs per channel; sppg = G_c × spp per channel c.
 
     Expected per channel: :func:`gfactor` with that channel's phase (the definition), so exact to rounding;
     ``SPPGResult.gfactor`` is their mean.
     """
-    grid = GridSpec(origin=(0.0, 0.0, 0.0), voxel_size=1.0, shape=(9, 9, 4))
-    rho = np.full(grid.shape, 0.7)
-    dirs = gf.sample_directions(16)
-    sun = sun_at(55.0)
-    pts = grid.index_to_world(np.array([[1, 4, 2], [4, 4, 1], [7, 2, 3]]))
-    s = dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs, points=pts)
+    s, sun, dirs = _three_points_in_a_box()
     optics = LeafOptics((0.5, 0.1, 0.02), (0.05, 0.3, 0.02))
     res = gf.solve_sppg(s, normals=np.tile([0.0, 0.0, 1.0], (3, 1)), optics=optics, sun_direction=sun, directions=dirs,
                         params=gf.SPPGParams(g_weights="radiance", sky=False))
@@ -837,12 +841,7 @@ def test_g_orders_in_solve_sppg():
     Expected from the two helpers tested above (the definition), so to rounding. Also: with ``g_orders`` in an
     infinite slab G = 1 stays 1, so SPPG is still the exact solution there.
     """
-    grid = GridSpec(origin=(0.0, 0.0, 0.0), voxel_size=1.0, shape=(9, 9, 4))
-    rho = np.full(grid.shape, 0.7)
-    dirs = gf.sample_directions(16)
-    sun = sun_at(55.0)
-    pts = grid.index_to_world(np.array([[1, 4, 2], [4, 4, 1], [7, 2, 3]]))
-    s = dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs, points=pts)
+    s, sun, dirs = _three_points_in_a_box()
     kw = dict(normals=np.tile([0.0, 0.6, 0.8], (3, 1)), optics=OPTICS, sun_direction=sun, directions=dirs)
     for model in gf.MODELS:
         base = gf.solve_sppg(s, **kw, params=gf.SPPGParams(model=model))
