@@ -40,7 +40,9 @@ def _eight_directions(ctx: click.Context, param: click.Parameter, value: int) ->
               help="How E_scattered is lit. leaves: the sun at each leaf's scatterers is the neighbours' exact lit "
                    "fractions (the shadow rays, traced even with --direct volume) and every order of scattering is "
                    "counted; paper: boulanger2008's one bounce (eq. 5.24), whose linear envelope darkens the "
-                   "scatterers (0.6-0.74 of the reference's scattered light on the README's trees).")
+                   "scatterers: 0.6-0.74 of the reference's scattered light on the README's three trees, 0.3 of "
+                   "leaves' on others (the denser or more clumped the crown, the darker). Recorded as "
+                   "foliage:smax:scatter on the tree prim.")
 @direct_options
 @bake_options
 @common_options

@@ -160,6 +160,7 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
                     values={
                         "foliage:tau": (float(env.tau), "Float"),
                         "foliage:smax:path": (env.path, "Token"),
+                        "foliage:smax:scatter": (params.scatter, "Token"),
                         "foliage:smax:seconds": (float(env.seconds + light.seconds), "Float"),
                         "foliage:smax:version": (__version__, "String"),
                     },

@@ -51,6 +51,7 @@ def test_primvars_have_the_contracted_shapes(smax_out):
     # provenance beside tau (FoliageEnvelopeAPI): which path, how long, which version
     tree = stage.GetPrimAtPath("/Tree")
     assert tree.GetAttribute("foliage:smax:path").Get() == report.stats["path"]
+    assert tree.GetAttribute("foliage:smax:scatter").Get() == report.stats["prototypes"][0]["scatter"] == "leaves"
     assert tree.GetAttribute("foliage:smax:seconds").Get() > 0
     assert tree.GetAttribute("foliage:smax:version").Get()
     assert foliage("validate", out).returncode == 0
@@ -186,6 +187,7 @@ def test_scattered_light_against_the_reference_and_the_papers_own(smax_out, tmp_
     written = per_leaf(tmp_path / "p.usda", "foliage:smax:scattered")
     paper_stage = Usd.Stage.Open(str(tmp_path / "p.usda"))
     tau = paper_stage.GetPrimAtPath("/Tree").GetAttribute("foliage:tau").Get()
+    assert paper_stage.GetPrimAtPath("/Tree").GetAttribute("foliage:smax:scatter").Get() == "paper"
     again = boulanger.solve(leaves.normals, per_leaf(tmp_path / "p.usda", "foliage:smax").reshape(-1, 8), tau,
                             params=boulanger.BoulangerParams(sun_direction=tuple(sun.direction),
                                                              reflectance=tuple(optics.reflectance),
