@@ -452,14 +452,15 @@ def solve(normals, smax, tau, *, up=(0.0, 0.0, 1.0), params: BoulangerParams, sc
 
     d_front, d_back = sun_direct_irradiance(n, s, tau, sun, dirs)
     s_front, s_back = sun_indirect_irradiance(n, s, tau, sun, optics, dirs, scatterer_sun=scatterer_sun)
-    p_recollide = recollision_probability(np.exp(-tau * s))
+    attenuation = np.exp(-tau * s)  # eq. (5.30), for the recollision probability and the sky
+    p_recollide = recollision_probability(attenuation)
     if all_orders:  # ω = ρ̄ / 2, the albedo of a face averaged over the two (eq. (5.19))
         orders = higher_orders(optics.sum(axis=0) / 2.0, p_recollide)
         s_front, s_back = s_front * orders, s_back * orders
     sky = np.asarray(params.sky_radiance, dtype=float)
     if sky.ndim == 1:
         sky = sky_radiance_per_direction(sky, params.ground_reflectance, dirs, sample_frame(up)[1])
-    k_front, k_back = sky_irradiance(n, np.exp(-tau * s), sky, dirs)
+    k_front, k_back = sky_irradiance(n, attenuation, sky, dirs)
 
     f32 = np.float32
     return LightingResult(

@@ -9,6 +9,7 @@ counts every order (``--scatter leaves``; :mod:`foliage_tools.lighting.boulanger
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,6 +73,13 @@ class SmaxBake:
     index: int
     envelope: envelope.EnvelopeResult
     lighting: boulanger.LightingResult
+    scatter_seconds: float = 0.0
+    """Wall time of the scatterers' sun (lighting.scatterer_sun; 0 with ``--scatter paper``)."""
+
+    @property
+    def seconds(self) -> float:
+        """Envelope, scatterers' sun and lighting of this prototype."""
+        return self.envelope.seconds + self.scatter_seconds + self.lighting.seconds
 
 
 def sky_radiance(scene: Scene) -> tuple[float, float, float]:
@@ -107,9 +115,11 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
         env = envelope.solve(
             proto.leaves.centers, proto.leaves.normals, proto.leaves.areas, up=up_local, params=envelope.EnvelopeParams(path=params.path)
         )
+        t0 = time.perf_counter()
         t_bar = None if lit is None else scatterer_sun.scatterer_transmission(
             proto.leaves.centers, np.clip(lit[i], 0.0, 1.0), env.tau, up=up_local,
             leaf_size=float(np.sqrt(np.mean(proto.leaves.areas))))
+        scatter_seconds = time.perf_counter() - t0
         light = boulanger.solve(
             proto.leaves.normals,
             env.smax,
@@ -125,7 +135,7 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
             all_orders=lit is not None,
         )
         progress.advance()
-        out.append(SmaxBake(i, env, light))
+        out.append(SmaxBake(i, env, light, scatter_seconds))
     return out
 
 
@@ -161,7 +171,7 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
                         "foliage:tau": (float(env.tau), "Float"),
                         "foliage:smax:path": (env.path, "Token"),
                         "foliage:smax:scatter": (params.scatter, "Token"),
-                        "foliage:smax:seconds": (float(env.seconds + light.seconds), "Float"),
+                        "foliage:smax:seconds": (float(bake.seconds), "Float"),
                         "foliage:smax:version": (__version__, "String"),
                     },
                 )
@@ -176,12 +186,12 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
                 "e_direct_mean": np.mean(e_direct, axis=0).tolist(),
                 "e_direct_volume_mean": np.mean(light.e_direct, axis=0).tolist(),
                 "e_scattered_mean": np.mean(light.e_scattered, axis=0).tolist(),
-                "seconds": float(env.seconds + light.seconds),
+                "seconds": float(bake.seconds),
                 "scatter": params.scatter,
                 "recollision_probability": light.stats["recollision_probability"],
             }
         )
-    world = exact.world if exact else bake_world(scene)
+    world = traced.world if traced else bake_world(scene)
     forest = forest_light(scene, sun, params.optics, progress=progress)  # the neighbours' scattered light
     pv, at = bake_instance_edits(
         scene, "smax", world,
