@@ -248,7 +248,7 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, nois
 @bake_options
 @common_options
 def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, solver: str, absorption_scale: float, max_sweeps: int,
-       storage: str, gather: int, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+       storage: str, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
        as_json: bool, quiet: bool, verbose: int) -> None:
     """Lattice-Boltzmann light bake (geist2008, steele2010) per unique prototype.
 
@@ -265,7 +265,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
     Example:
       foliage lb examples/tree_small.usda -o out/tree.lb.usda --resolution 64
       foliage lb examples/tree_small.usda -o out/tree.lb.usda --bases all   # relightable
-      foliage lb examples/tree_small.usda -o out/tree.lb.usda --gather 1024 # closest to the reference
+      foliage lb examples/tree_small.usda -o out/tree.lb.usda --gather 0    # the lattice alone, per leaf
     """
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.lb import LBBakeParams, run_lb
@@ -306,6 +306,8 @@ def bake_job_options(fn):
         click.option("--layer-format", type=click.Choice(["auto", "usda", "usdc"]), default="auto", show_default=True,
                      help="File format of the bake's layers: usda (text), usdc (binary, ~4x smaller and faster for large "
                           "bakes) or auto: usdc from 100 000 prototype leaves or 10 000 instances on, else usda."),
+        gather_option("the volume method's (SPP's in the spp stage, LB's in the lb stage)",
+                      "primvars:foliage:sppg:scattered and :lb:scattered"),
         volume_purpose_option,
         direct_options,
         bake_options,
@@ -316,7 +318,8 @@ def bake_job_options(fn):
 
 def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float, direct_mode: str,
                 direct_samples: int | None, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
-                volume_purpose: str = "default", portable: bool = False, layer_format: str = "auto"):
+                volume_purpose: str = "default", portable: bool = False, layer_format: str = "auto",
+                gather: int | None = None):
     """The ``BakeParams`` of the bake options' values."""
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.bake import BakeParams
@@ -326,7 +329,7 @@ def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, 
         sun=parse_sun(sun) if sun is not None else None,
         resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
         reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples), portable=portable,
-        volume_purpose=volume_purpose, layer_format=layer_format,
+        volume_purpose=volume_purpose, layer_format=layer_format, gather=gather,
     )
 
 
@@ -340,7 +343,7 @@ def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, 
                    "layer sublayers the input by a relative path, and OUTDIR moves only together with the input.")
 @common_options
 def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float,
-         portable: bool, layer_format: str, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+         portable: bool, layer_format: str, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
          as_json: bool, quiet: bool, verbose: int) -> None:
     """The main job: density, s_max, SPP and LB bakes, a preview (and a speed-vs-error report) into OUTDIR.
 
@@ -359,7 +362,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
         params = bake_params(resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
                              reference_noise=reference_noise, direct_mode=direct_mode, direct_samples=direct_samples,
                              sun=sun, leaf_optics=leaf_optics, wood_reflectance=wood_reflectance,
-                             volume_purpose=volume_purpose, portable=portable, layer_format=layer_format)
+                             volume_purpose=volume_purpose, portable=portable, layer_format=layer_format, gather=gather)
 
         def render(report) -> None:
             for name, st in report.stats["stages"].items():
@@ -432,7 +435,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
 @bake_options
 @common_options
 def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, model: str | None, g_weights: str, g_orders: bool, g_resolution: int, depth: str,
-        rays_per_leaf: int, gather: int, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+        rays_per_leaf: int, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
         as_json: bool, quiet: bool, verbose: int) -> None:
     """Simplified plane-parallel scattering with the G-factor (shinya2013).
 

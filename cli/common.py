@@ -246,13 +246,28 @@ def volume_purpose_option(fn: Callable) -> Callable:
 
 
 def gather_option(later_bounces: str, replaces: str) -> Callable:
-    """``--gather N`` (lb and spp): a final gather over the actual leaves on top of the volume method."""
+    """``--gather auto|N`` (lb, spp, bake): a final gather over the actual leaves on top of the volume method."""
     return click.option(
-        "--gather", type=click.IntRange(min=0), default=0, show_default=True, metavar="N",
+        "--gather", default="auto", show_default=True, callback=parse_gather, metavar="auto|N",
         help="Final gather: N rays per leaf (a multiple of 4) over both hemispheres through the actual leaves; the "
              f"light they see is scattered once, exactly (a shadow ray at the hit point), plus {later_bounces} at the "
-             f"hit leaf for the later bounces. Replaces {replaces}. 1024 rays: ~7 % sampling error per leaf; 0: off.",
+             f"hit leaf for the later bounces. Replaces {replaces}. Per-leaf error of E_scattered on the oak: 0.28 "
+             "without, 0.19 at 64 rays, 0.11 at 256, 0.085 at 1024 (README). auto: 1024 up to 16k traced leaves, "
+             "fewer above so the gather takes at most 16M rays, off (with a warning) above 262k (and off for "
+             "lb --bases all, whose per-leaf light is then the bases' for the baked sun); 0: off.",
     )
+
+
+def parse_gather(ctx: click.Context, param: click.Parameter, value) -> int | None:
+    if value is None or str(value).strip().lower() == "auto":
+        return None
+    try:
+        k = int(str(value).strip())
+    except ValueError:
+        raise click.BadParameter(f"{value!r}: give 'auto', 0 (off) or a number of rays per leaf (a multiple of 4).") from None
+    if k < 0:
+        raise click.BadParameter(f"{k}: give 'auto', 0 (off) or a number of rays per leaf (a multiple of 4).")
+    return k
 
 
 def parse_direct_samples(ctx: click.Context, param: click.Parameter, value) -> int | None:

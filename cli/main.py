@@ -237,6 +237,11 @@ def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, ray
             times.add_row(*(f"{t[k]:.3g}" for k in ("density", "smax", "spp", "lb", "direct", "reference")),
                           f"{s['peak_memory_bytes'] / 1e9:.2f} GB")
             console.stdout.print(times)
+            k = s["gather_rays_per_leaf"]
+            console.stdout.print(f"spp and lb include their final gather (--gather auto): {k} rays per leaf, "
+                                 f"{s['gather_rays']:,} rays" if k else
+                                 "--gather auto is off for this many leaves (spp and lb keep their volume method's light)",
+                                 highlight=False)
             if s["forest"] is not None:
                 f = s["forest"]
                 lone = s["traced"] == "lone trees"

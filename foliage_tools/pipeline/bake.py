@@ -27,6 +27,7 @@ from foliage_tools.errors import FoliageError, OutputError, UsageError
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.direct import DirectChoice
+from foliage_tools.pipeline.gather import check_gather
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.scene.atomic import Commit, recover
 
@@ -47,6 +48,8 @@ class BakeParams:
     """``--direct`` for every bake stage."""
     volume_purpose: str = "default"
     """``--volume-purpose`` of the FoliageLighting volumes every stage writes."""
+    gather: int | None = None
+    """``--gather`` of the spp and lb stages (rays per leaf of the final gather; 0: off; None: auto)."""
     portable: bool = False
     """Bake a flattened copy of the input written into OUTDIR (``scene.portable``), so the folder can move on its own."""
     layer_format: str = "auto"
@@ -54,6 +57,7 @@ class BakeParams:
     (:func:`layer_extension`)."""
 
     def __post_init__(self) -> None:
+        check_gather(self.gather)
         if self.layer_format not in LAYER_FORMATS:
             raise UsageError(f"--layer-format must be one of {', '.join(LAYER_FORMATS)}, got {self.layer_format!r}.")
 
@@ -185,10 +189,11 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
     smax_out = work / f"{stem}.smax.{ext}"
     stages["smax"] = _stage("smax", run_smax, density_out, smax_out, SmaxParams(optics=params.optics, sun=params.sun, direct=params.direct), progress=progress)
     spp_out = work / f"{stem}.spp.{ext}"
-    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose), progress=progress)
+    stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose, gather=params.gather), progress=progress)
     lb_out = work / f"{stem}.lb.{ext}"
     stages["lb"] = _stage(
-        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose), progress=progress
+        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose, gather=params.gather),
+        progress=progress,
     )
     # a picture of the bake: direct light beside direct + each method's indirect, same exposure; per-leaf
     # primvars exist only on editable prototypes (a forest of native instances has none: direct light only)

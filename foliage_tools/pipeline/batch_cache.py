@@ -59,6 +59,8 @@ def options_json(params: BakeParams) -> dict:
         "resolution": params.resolution, "with_reference": params.with_reference,
         "reference_paths": params.reference_paths, "reference_noise": params.reference_noise,
         "direct": {"mode": d.mode, "samples": d.samples, "seed": d.seed},
+        # they change what is written too (the per-leaf scattered light; the volumes' purpose; the layers' files)
+        "gather": params.gather, "volume_purpose": params.volume_purpose, "layer_format": params.layer_format,
     }
 
 

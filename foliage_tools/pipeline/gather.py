@@ -22,10 +22,43 @@ from foliage_tools.pipeline.world import World, bake_world, prototype_means, tra
 from foliage_tools.scene.model import Scene
 
 
-def check_gather(rays: int) -> None:
-    if rays != 0 and (rays < 4 or rays % 4 or rays > gather.MAX_RAYS):
-        raise UsageError(f"--gather must be 0 (off) or a multiple of 4 rays per leaf (two halves per face) up to "
-                         f"{gather.MAX_RAYS}, got {rays}.")
+#: ``--gather auto``: rays per leaf, the largest power of two from AUTO_MAX down to AUTO_MIN whose rays over the
+#: traced leaves stay within AUTO_RAY_BUDGET, and off above AUTO_RAY_BUDGET / AUTO_MIN leaves. Why these: on the oak
+#: (1831 leaves, lb-64, 2 % reference) per-leaf E_scattered relative RMS is 0.280 without a gather, 0.269 / 0.187 /
+#: 0.139 / 0.106 / 0.092 / 0.085 / 0.080 at 32 / 64 / 128 / 256 / 512 / 1024 / 2048 rays, i.e. the gather's own
+#: sampling error: it pays from 64 rays on; and Embree traces a gather ray with its shadow ray at ~1M per second on
+#: 2 cores, so the budget keeps the gather to ~10-20 s on any tree, like the direct light's (pipeline.direct).
+AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET = 64, 1024, 1 << 24
+
+
+def auto_rays(leaves: int) -> int:
+    """Rays per leaf for ``--gather auto`` over ``leaves`` traced leaves; 0 (off) above the budget."""
+    if leaves * AUTO_MIN > AUTO_RAY_BUDGET:
+        return 0
+    k = AUTO_MAX
+    while k > AUTO_MIN and k * leaves > AUTO_RAY_BUDGET:
+        k //= 2
+    return k
+
+
+def check_gather(rays: int | None) -> None:
+    """``rays``: 0 (off), a multiple of 4 up to MAX_RAYS, or None (``auto``)."""
+    if rays is not None and rays != 0 and (rays < 4 or rays % 4 or rays > gather.MAX_RAYS):
+        raise UsageError(f"--gather must be 'auto', 0 (off) or a multiple of 4 rays per leaf (two halves per face) up "
+                         f"to {gather.MAX_RAYS}, got {rays}.")
+
+
+def resolve_rays(rays: int | None, leaves: int, warnings: list[str]) -> int:
+    """``--gather`` made concrete for ``leaves`` traced leaves (``auto``: :func:`auto_rays`, with a warning when it
+    turns the gather off)."""
+    if rays is not None:
+        return rays
+    k = auto_rays(leaves)
+    if k == 0:
+        warnings.append(f"--gather auto: off for {leaves:,} traced leaves (at {AUTO_MIN} rays per leaf they would take "
+                        f"more than {AUTO_RAY_BUDGET / 1e6:.0f}M rays); the per-leaf scattered light is the volume "
+                        f"method's. Give --gather {AUTO_MIN} (or more) to gather anyway, or --gather 0 to silence this.")
+    return k
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path
 from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
-from foliage_tools.pipeline.gather import bake_gather, check_gather
+from foliage_tools.pipeline.gather import bake_gather, check_gather, resolve_rays
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
 from foliage_tools.pipeline.world import bake_world
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
@@ -109,10 +109,12 @@ class LBBakeParams:
     node near the leaves), the lattice keeping the higher orders; ``lattice`` keeps the lattice's own."""
     volume_purpose: str = "default"
     """``--volume-purpose`` of the FoliageLighting volume (``scene.write.VOLUME_PURPOSES``)."""
-    gather: int = 0
+    gather: int | None = None
     """``--gather N``: rays per leaf of a final gather over the actual leaves (pipeline.gather): the first bounce
     exact, the later ones from LB's E_scattered at the hit leaf. Its result replaces ``:scattered`` and
-    ``lbIndirect`` (then per leaf, not interpolated in the lattice); the grids stay the lattice's. 0: off."""
+    ``lbIndirect`` (then per leaf, not interpolated in the lattice); the grids stay the lattice's. 0: off;
+    None: ``auto`` (pipeline.gather.auto_rays of the traced leaves with ``bases="sun"``; off with ``"all"``, whose
+    lbIndirect is then what the bases relight for the baked sun)."""
 
     def __post_init__(self) -> None:
         if self.lattice not in LATTICES:
@@ -291,9 +293,12 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
     bakes = bake_lb(scene, sun, params, report.warnings, progress)
     exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
     gathered = None
-    if params.gather:
-        gathered = bake_gather(scene, sun, params.optics, {b.index: b.e_scattered for b in bakes}, params.gather, progress,
-                               world=exact.world if exact else None)
+    world = exact.world if exact else bake_world(scene)
+    # auto gathers a sun bake only: a relightable one's lbIndirect is what its bases give for the baked sun
+    rays = 0 if params.gather is None and params.bases == "all" else resolve_rays(params.gather, int(world.offsets[-1]), report.warnings)
+    if rays:
+        gathered = bake_gather(scene, sun, params.optics, {b.index: b.e_scattered for b in bakes}, rays, progress,
+                               world=world)
     for bake in bakes:
         proto = scene.prototypes[bake.index]
         e_direct = exact.per_prototype[bake.index] if exact else bake.e_direct
@@ -321,6 +326,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "foliage:lb:sigmaS": tuple(float(v) for v in bake.medium.sigma_s),
             "foliage:lb:g": tuple(float(v) for v in bake.medium.g),
             "foliage:lb:absorptionScale": float(params.absorption_scale),
+            "foliage:gatherRays": int(rays),
         }
         vol = volume_path(scene, proto)
         edits.volumes.append(prototype_volume(scene, bake.index, vdb_file=vdb_path(out, scene, bake.index), grids=tuple(grids),
@@ -348,7 +354,6 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "e_scattered_lattice_mean": bake.e_scattered.mean(axis=0).tolist(),
             "e_direct_volume_mean": bake.e_direct.mean(axis=0).tolist(),
         })
-    world = exact.world if exact else (gathered.world if gathered else bake_world(scene))
     direct_all = exact.result.e_direct if exact else from_prototypes(world, {b.index: b.e_direct for b in bakes})
     scattered_all = gathered.result.e_scattered if gathered else from_prototypes(world, {b.index: b.e_scattered for b in bakes})
     from foliage_tools.pipeline.forest import forest_light

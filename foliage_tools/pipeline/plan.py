@@ -22,6 +22,7 @@ from foliage_tools.lighting.lb import PLAIN_ITERATION_FIELDS, memory_bytes
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import density_grid
 from foliage_tools.pipeline.direct import auto_samples, instance_samples
+from foliage_tools.pipeline.gather import auto_rays
 from foliage_tools.pipeline.report import Report
 from foliage_tools.pipeline.spp import DEPTH_PATHS, SPP_MAX_PLACEMENTS, depth_path
 from foliage_tools.pipeline.world import traced_alone, world_triangles
@@ -60,6 +61,9 @@ PLACED_DIRECT_RAYS_PER_S = 6.9e5
 #: Exact direct sunlight (--direct rays): shadow rays per second on 2 threads, BVH build included
 #: (bench_direct.py, generated lobed trees).
 DIRECT_RAYS_PER_S = 1.2e6
+#: Final gather (--gather, pipeline.gather): gather rays per second on 2 threads, each with the shadow ray at its
+#: hit (`foliage lb --json` stats.gather: tree_small 1.54M rays in 2.2 s, the oak 1.87M in 2.0-3.4 s; 2026-12-02).
+GATHER_RAYS_PER_S = 7.0e5
 #: The shadow rays and the reference copy every instance's triangles into one ray scene: peak resident memory
 #: ~380 MB + 760 B per world triangle (`foliage reference --paths 200000` on tree_small alone and on a 10 x 10
 #: stand of it, 5 268 -> 526 800 triangles: 384 -> 781 MB; 2026-12-02).
@@ -213,8 +217,13 @@ def plan(path: Path, params: PlanParams) -> Report:
         placed_rays = len(scene.instances) * instance_samples(len(scene.instances))
         direct_rays += placed_rays
         total_s["direct"] += placed_rays / PLACED_DIRECT_RAYS_PER_S
+    # --gather auto (the default of spp and lb): once in each, over the leaves the shadow rays trace
+    gather_rays = traced_leaves * auto_rays(traced_leaves)
+    for stage in ("spp", "lb"):
+        total_s[stage] += gather_rays / GATHER_RAYS_PER_S
     report.stats = {
         "resolution": params.resolution, "bases": params.bases, "storage": params.storage, "depth": depth,
+        "gather_rays_per_leaf": auto_rays(traced_leaves), "gather_rays": int(gather_rays),
         "prototypes": protos, "instances": len(scene.instances), "leaves_total": int(leaves_total),
         "seconds_estimate": total_s, "peak_memory_bytes": peak, "direct_rays": int(direct_rays),
         "world_triangles": int(world_tris), "world_memory_bytes": world_bytes, "forest": forest,

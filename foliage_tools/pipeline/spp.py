@@ -58,7 +58,7 @@ from foliage_tools.lighting.phase import canopy_bilambertian_phase
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
-from foliage_tools.pipeline.gather import bake_gather, check_gather
+from foliage_tools.pipeline.gather import bake_gather, check_gather, resolve_rays
 from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
 from foliage_tools.pipeline.world import bake_world
@@ -126,10 +126,11 @@ class SppParams:
     (exact shadow rays by default, or eq. 17's attenuated beam through the measured depths)."""
     volume_purpose: str = "default"
     """``--volume-purpose`` of the FoliageLighting volume (``scene.write.VOLUME_PURPOSES``)."""
-    gather: int = 0
+    gather: int | None = None
     """``--gather N``: rays per leaf of a final gather over the actual leaves (pipeline.gather) whose first
-    bounce is exact and whose later bounces come from SPPG (SPP with ``--no-gfactor``); its result replaces
-    that method's ``:scattered`` primvar and the scattered part of ``sppIrradiance``. 0: off."""
+    bounce is exact and whose later bounces come from SPP's exact slab (with or without ``--gfactor``); its result
+    replaces the ``:scattered`` primvar of SPPG (SPP with ``--no-gfactor``) and the scattered part of
+    ``sppIrradiance``. 0: off; None: ``auto`` (pipeline.gather.auto_rays of the traced leaves)."""
 
     def __post_init__(self) -> None:
         if not (4 <= self.resolution <= 512):
@@ -421,12 +422,14 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
     exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
     best_name = "sppg" if params.gfactor else "spp"
     gathered = None
-    if params.gather:
+    world = exact.world if exact else bake_world(scene)
+    rays = resolve_rays(params.gather, int(world.offsets[-1]), report.warnings)
+    if rays:
         # the later bounces from SPP's exact slab, with or without --gfactor: in the uniform layer SPPG's G reads
         # 5-10 % low and the gather on it 4.6-5.5 % low in every depth bin, on SPP -0.6 ... +1.7 %; on the oak,
         # tree_small and the sapling the gather on SPP is 0.076-0.093 per leaf, on SPPG 0.081-0.099
         gathered = bake_gather(scene, sun, params.optics, {b.index: b.result.spp.scattered for b in bakes},
-                               params.gather, progress, world=exact.world if exact else None)
+                               rays, progress, world=world)
     for bake in bakes:
         proto = scene.prototypes[bake.index]
         res = bake.result
@@ -439,6 +442,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
             "foliage:method": "spp", "foliage:voxelSize": float(bake.voxel_size),
             "foliage:resolution": tuple(int(n) for n in bake.grid_depth.shape),
             "foliage:metersPerUnit": float(scene.meters_per_unit), "foliage:seconds": float(bake.seconds), "foliage:version": __version__,
+            "foliage:gatherRays": int(rays),
         }
         edits.volumes.append(prototype_volume(scene, bake.index, vdb_file=vdb_path(out, scene, bake.index), grids=grids,
                                               attributes=attrs, purpose=params.volume_purpose))
@@ -467,7 +471,6 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
             "density": bake.density_source,
             "e_scattered_mean": {m: v.mean(axis=0).tolist() for m, v in scattered.items()},
         })
-    world = exact.world if exact else (gathered.world if gathered else bake_world(scene))
     best_of = {b.index: getattr(b.result, best_name) for b in bakes}
     # eq. 31 shades by the neighbours; the lattice adds their scattered light (a gather traced it already)
     forest = forest_light(scene, sun, params.optics, progress=progress) if gathered is None or world.lone else None

@@ -31,8 +31,9 @@ def bakes(tmp_path_factory):
     optics = parse_leaf_optics(None)
     reports = {
         "ref": run_reference(EXAMPLE, d / "ref.usda", ReferenceParams(optics=optics, paths=2_000_000, seed=1)),
-        "lb": run_lb(EXAMPLE, d / "lb.usda", LBBakeParams(optics=optics, resolution=16, gather=RAYS)),
-        "lb-plain": run_lb(EXAMPLE, d / "lbp.usda", LBBakeParams(optics=optics, resolution=16)),
+        # the default: --gather auto (1024 rays per leaf for 1500 leaves)
+        "lb": run_lb(EXAMPLE, d / "lb.usda", LBBakeParams(optics=optics, resolution=16)),
+        "lb-plain": run_lb(EXAMPLE, d / "lbp.usda", LBBakeParams(optics=optics, resolution=16, gather=0)),
         # SPP at 32: the gather takes its later bounces from SPP's exact slab, which on a 16^3 grid of this crown
         # reads them so high that the gathered crown mean was +5.1 % (measured; SPPG's G hid it at 16)
         "spp": run_spp(EXAMPLE, d / "spp.usda", SppParams(optics=optics, resolution=32, depth="grid", gather=RAYS)),
@@ -83,7 +84,9 @@ def test_lb_gather_replaces_the_lattice_scattered_light_and_its_vertex_primvar(b
     face_of_corner = np.repeat(np.arange(counts.size), counts)
     np.testing.assert_allclose(vertex[indices], gathered[face_of_corner], rtol=1e-6)
     st = reports["lb"].stats
-    assert st["gather"]["rays_per_leaf"] == RAYS and st["gather"]["rays"] == RAYS * 1500
+    # the default is --gather auto: 1024 rays per leaf up to 16k traced leaves
+    assert st["gather"]["rays_per_leaf"] == 1024 and st["gather"]["rays"] == 1024 * 1500
+    assert reports["lb-plain"].stats["gather"] is None and reports["spp"].stats["gather"]["rays_per_leaf"] == RAYS
     assert st["prototypes"][0]["e_scattered_lattice_mean"] != st["prototypes"][0]["e_scattered_mean"]
     assert foliage("validate", d / "lb.usda").returncode == 0
 
@@ -93,3 +96,18 @@ def test_gather_flag_is_checked_before_any_work(tmp_path):
         r = foliage(cmd, EXAMPLE, "-o", tmp_path / f"{cmd}.usda", "--gather", "6")
         assert r.returncode == 2 and "multiple of 4" in r.stderr, r.stderr
         assert not (tmp_path / f"{cmd}.usda").exists()
+
+
+def test_each_volume_records_the_gather_behind_its_per_leaf_light(bakes):
+    """``foliage:gatherRays`` (FoliageLightingAPI) says whether ``:scattered`` is gathered, and with how many rays."""
+    d, _ = bakes
+    for layer, rays in (("lb.usda", 1024), ("lbp.usda", 0), ("spp.usda", RAYS)):
+        stage = open_stage(d / layer)
+        vol = stage.GetPrimAtPath("/Tree/FoliageLighting")
+        assert vol.GetAttribute("foliage:gatherRays").Get() == rays, layer
+
+
+def test_gather_auto_and_zero_are_accepted_and_a_word_is_refused(tmp_path):
+    r = foliage("lb", EXAMPLE, "-o", tmp_path / "lb.usda", "--gather", "seven")
+    assert r.returncode == 2 and "'auto', 0 (off)" in r.stderr, r.stderr
+    assert "auto|N" in foliage("bake", "--help").stdout

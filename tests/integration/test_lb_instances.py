@@ -50,7 +50,9 @@ def _rot_z90(p):
 def _bake(path, out, sun):
     from pxr import Usd, UsdGeom
 
-    report = run_lb(path, out, LBBakeParams(optics=parse_leaf_optics(None), resolution=RES, sun=sun))
+    # the lattice's per-leaf light (no gather: its rays are seeded in world space, so a rotated copy is equal
+    # only within the gather's sampling noise)
+    report = run_lb(path, out, LBBakeParams(optics=parse_leaf_optics(None), resolution=RES, sun=sun, gather=0))
     stage = Usd.Stage.Open(str(out))
     pv = UsdGeom.PrimvarsAPI(UsdGeom.Mesh(stage.GetPrimAtPath("/Tree/Leaves")))
 

@@ -51,7 +51,8 @@ def _bake(forest: Path, out_dir: Path) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     run_density(forest, out_dir / "f.density.usda", DensityParams(resolution=RESOLUTION))
     run_lb(out_dir / "f.density.usda", out_dir / "f.lb.usda",
-           LBBakeParams(optics=parse_leaf_optics(None), resolution=RESOLUTION, direct=DirectChoice(mode="volume")))
+           # no gather: it traces every instance, so the forest lattice (its .forest.vdb) would not be solved
+           LBBakeParams(optics=parse_leaf_optics(None), resolution=RESOLUTION, direct=DirectChoice(mode="volume"), gather=0))
     return out_dir / "f.lb.usda"
 
 

@@ -17,7 +17,8 @@ EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 def test_spp_writes_grids_and_primvars(tmp_path):
     from pxr import Usd, UsdGeom
 
-    report = run_spp(EXAMPLE, tmp_path / "s.usda", SppParams(optics=parse_leaf_optics(None), resolution=16))
+    # no gather: the sppg primvars are then SPPG's own (G applied to SPP's), which this test checks against spp's
+    report = run_spp(EXAMPLE, tmp_path / "s.usda", SppParams(optics=parse_leaf_optics(None), resolution=16, gather=0))
     assert sorted(grid_names(tmp_path / "s.vdb")) == ["sppDepth", "sppGFactor", "sppThickness"]
     g = read_grid(tmp_path / "s.vdb", "sppGFactor").values
     assert np.all((g >= 0) & (g <= 1 + 1e-6))
