@@ -145,9 +145,27 @@ def reference(scene: Path, out: Path, paths: int, noise: float | None, seed: int
     run(body)
 
 
-@click.command()
+class BenchCommand(click.Command):
+    """``foliage bench``, whose help ends with the methods and families of the registry
+    (foliage_tools/bench/registry.py), read when the help is shown: a method that lands is listed without
+    editing this, and other commands do not pay the seconds its modules take to import."""
+
+    def format_epilog(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        from foliage_tools.bench.registry import families, methods
+
+        found = methods()
+        with formatter.section("Methods"):
+            formatter.write_dl([(m.name, m.description if m.available else f"not available yet: {m.description}")
+                                for m in found])
+        with formatter.section("Families (a family name selects each of its variants)"):
+            formatter.write_dl([(head, ", ".join(members)) for head, members in families([m.name for m in found]).items()])
+        super().format_epilog(ctx, formatter)
+
+
+@click.command(cls=BenchCommand)
 @SCENE
-@click.option("--methods", "methods_", default=None, metavar="NAME,...", help="Methods to run, by name or family (lb = lb-32 and lb-64) [default: every available one].")
+@click.option("--methods", "methods_", default=None, metavar="NAME,...",
+              help="Methods to run, by name or family (listed below) [default: every available one].")
 @click.option("--plot", type=click.Path(path_type=Path, dir_okay=False), default=None, help="Write a log-log speed-vs-error plot (PNG/SVG/PDF).")
 @click.option("--paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
               help="Most reference Monte Carlo sun paths (it stops earlier at --noise).")
