@@ -392,6 +392,10 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                              volume_purpose=volume_purpose, portable=portable, layer_format=layer_format)
 
         def render(report) -> None:
+            d = report.stats.get("direct") or {}
+            if d.get("mode") == "rays":  # traced before the stages, once for smax, spp and lb: in none of their seconds
+                console.stdout.print(f"{'direct':>8}: {d['seconds']:.2f} s (exact sunlight: {d['samples_per_leaf']:,} "
+                                     "shadow rays per leaf, once for smax, spp and lb)", highlight=False, soft_wrap=True)
             for name, st in report.stats["stages"].items():
                 console.stdout.print(f"{name:>8}: {st['seconds']:.2f} s", highlight=False)
             b = report.stats["bench"]
