@@ -71,19 +71,22 @@ def smax(scene: Path, out: Path, directions: int, path_: str, scatter: str, dire
             path=path_, direct=direct_choice(direct_mode, direct_samples), scatter=scatter,
         )
 
-        def render(report) -> None:
-            s = report.stats
-            table = Table(title=f"s_max in {report.seconds:.2f} s, sun az {s['sun']['azimuth']:.0f}° el {s['sun']['elevation']:.0f}° ({escape(s['sun']['source'])})")
-            for col in ("prototype", "leaves", "path", "tau", "mean s_max", "mean E_direct (G)", "mean E_scattered (G)"):
-                table.add_column(col, justify="left" if col == "prototype" else "right")
-            for p in s["prototypes"]:
-                table.add_row(escape(p["path"]), str(p["leaves"]), p["path_used"], f"{p['tau']:.4g}", f"{p['smax_mean']:.4g}",
-                              f"{p['e_direct_mean'][1]:.4g}", f"{p['e_scattered_mean'][1]:.4g}")
-            console.stdout.print(table)
-
-        return execute(lambda progress: run_smax(scene, out, params, progress=progress), as_json=as_json, quiet=quiet, render=render)
+        return execute(lambda progress: run_smax(scene, out, params, progress=progress), as_json=as_json, quiet=quiet,
+                       render=lambda report: console.print_table(smax_table(report)))
 
     run(body)
+
+
+def smax_table(report) -> Table:
+    """``foliage smax``'s result: one row per prototype."""
+    s = report.stats
+    table = console.result_table(
+        f"s_max in {report.seconds:.2f} s, sun az {s['sun']['azimuth']:.0f}° el {s['sun']['elevation']:.0f}° ({escape(s['sun']['source'])})",
+        "prototype", ("leaves", "path", "tau", "mean s_max", "mean E_direct (G)", "mean E_scattered (G)"))
+    for p in s["prototypes"]:
+        table.add_row(escape(p["path"]), str(p["leaves"]), p["path_used"], f"{p['tau']:.4g}", f"{p['smax_mean']:.4g}",
+                      f"{p['e_direct_mean'][1]:.4g}", f"{p['e_scattered_mean'][1]:.4g}")
+    return table
 
 
 @click.command()
@@ -142,9 +145,27 @@ def reference(scene: Path, out: Path, paths: int, noise: float | None, seed: int
     run(body)
 
 
-@click.command()
+class BenchCommand(click.Command):
+    """``foliage bench``, whose help ends with the methods and families of the registry
+    (foliage_tools/bench/registry.py), read when the help is shown: a method that lands is listed without
+    editing this, and other commands do not pay the seconds its modules take to import."""
+
+    def format_epilog(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        from foliage_tools.bench.registry import families, methods
+
+        found = methods()
+        with formatter.section("Methods"):
+            formatter.write_dl([(m.name, m.description if m.available else f"not available yet: {m.description}")
+                                for m in found])
+        with formatter.section("Families (a family name selects each of its variants)"):
+            formatter.write_dl([(head, ", ".join(members)) for head, members in families([m.name for m in found]).items()])
+        super().format_epilog(ctx, formatter)
+
+
+@click.command(cls=BenchCommand)
 @SCENE
-@click.option("--methods", "methods_", default=None, metavar="NAME,...", help="Methods to run, by name or family (lb = lb-32 and lb-64) [default: every available one].")
+@click.option("--methods", "methods_", default=None, metavar="NAME,...",
+              help="Methods to run, by name or family (listed below) [default: every available one].")
 @click.option("--plot", type=click.Path(path_type=Path, dir_okay=False), default=None, help="Write a log-log speed-vs-error plot (PNG/SVG/PDF).")
 @click.option("--paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
               help="Most reference Monte Carlo sun paths (it stops earlier at --noise).")
@@ -196,30 +217,39 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, nois
                 report.outputs.append(str(write_plot(plot, report.stats, f"{scene.name}: {report.stats['leaves']} leaves")))
             return report
 
-        def render(report) -> None:
-            s = report.stats
-            ref = s["reference"]
-            table = Table(title=f"{escape(str(scene))}: {s['leaves']} leaves, sun az {s['sun']['azimuth']:.0f}° el {s['sun']['elevation']:.0f}°")
-            cols = ("method", "seconds", "rel. RMS E_scattered", "rel. RMS total", "total, own direct",
-                    "binned E_scattered (eq. 30)", "binned total (eq. 30)")
-            for col in cols:
-                table.add_column(col, justify="left" if col == "method" else "right")
-            table.add_row("reference (MC)", f"{ref['seconds']:.2f}", f"noise {ref['noise_rel']:.3f}", f"noise {ref['noise_rel_total']:.3f}",
-                          "", "", "")
-            d = s["direct"]
-            table.add_row("direct (rays)", f"{d['seconds']:.3f}", "", f"E_direct {d['rel_rms_direct']:.3f}", "", "", "")
-            for m in s["methods"]:
-                if not m["available"]:
-                    table.add_row(escape(m["name"]), "not available", *[""] * (len(cols) - 2))
-                    continue
-                keys = ("rel_rms_scattered", "rel_rms_total", "rel_rms_total_volume", "binned_rms", "binned_rms_total")
-                cells = ["n/a" if m[k] is None else f"{m[k]:.3f}" for k in keys]
-                table.add_row(escape(m["name"]), f"{m['seconds']:.3f}", *cells)
-            console.stdout.print(table)
-
-        return execute(stage, as_json=as_json, quiet=quiet, render=render)
+        return execute(stage, as_json=as_json, quiet=quiet, render=lambda report: console.print_table(bench_table(scene, report.stats)))
 
     run(body)
+
+
+def count(n: int) -> str:
+    """A count the way a table shows it: 6.71M, 20k, 1,500."""
+    if n >= 1_000_000:
+        return f"{n / 1e6:.3g}M"
+    if n >= 10_000:
+        return f"{n / 1e3:.3g}k"
+    return f"{n:,}"
+
+
+def bench_table(scene: Path, s: dict) -> Table:
+    """``foliage bench``'s result (its report's stats): the reference, the exact direct light, then each method."""
+    ref = s["reference"]
+    table = console.result_table(
+        f"{escape(str(scene))}: {s['leaves']} leaves, sun az {s['sun']['azimuth']:.0f}° el {s['sun']['elevation']:.0f}°",
+        "method", ("seconds", "rel. RMS E_scattered", "rel. RMS total", "total, own direct", "binned E_scattered (eq. 30)",
+                   "binned total (eq. 30)"))
+    table.add_row(f"reference ({count(ref['paths'])} paths)", f"{ref['seconds']:.2f}", f"noise {ref['noise_rel']:.3f}",
+                  f"noise {ref['noise_rel_total']:.3f}", "", "", "")
+    d = s["direct"]
+    table.add_row("direct (rays)", f"{d['seconds']:.3f}", "", f"E_direct {d['rel_rms_direct']:.3f}", "", "", "")
+    for m in s["methods"]:
+        if not m["available"]:
+            table.add_row(escape(m["name"]), "not available", *[""] * 5)
+            continue
+        keys = ("rel_rms_scattered", "rel_rms_total", "rel_rms_total_volume", "binned_rms", "binned_rms_total")
+        cells = ["n/a" if m[k] is None else f"{m[k]:.3f}" for k in keys]
+        table.add_row(escape(m["name"]), f"{m['seconds']:.3f}", *cells)
+    return table
 
 
 @click.command()
@@ -365,6 +395,10 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                              volume_purpose=volume_purpose, portable=portable, layer_format=layer_format, gather=gather)
 
         def render(report) -> None:
+            d = report.stats.get("direct") or {}
+            if d.get("mode") == "rays":  # traced before the stages, once for smax, spp and lb: in none of their seconds
+                console.stdout.print(f"{'direct':>8}: {d['seconds']:.2f} s (exact sunlight: {d['samples_per_leaf']:,} "
+                                     "shadow rays per leaf, once for smax, spp and lb)", highlight=False, soft_wrap=True)
             for name, st in report.stats["stages"].items():
                 console.stdout.print(f"{name:>8}: {st['seconds']:.2f} s", highlight=False)
             b = report.stats["bench"]

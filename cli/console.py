@@ -9,7 +9,9 @@ import time
 
 from rich.console import Console
 from rich.markup import escape
+from rich.measure import Measurement
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+from rich.table import Table
 
 stderr = Console(stderr=True)
 stdout = Console()
@@ -72,6 +74,39 @@ class RichProgress:
             return
         if self._progress is not None and self._task is not None:
             self._progress.advance(self._task, n)
+
+
+def result_table(title: str, name: str, columns: tuple[str, ...]) -> Table:
+    """A table of results: one row per named thing (a method, a prototype's prim path), then right-aligned values.
+
+    The name column never wraps, so a name such as ``sppg-paper-radiance`` or a prim path stays whole and can be
+    copied; every other cell and heading folds onto more lines rather than being cut short with an ellipsis
+    (rich's default), so nothing printed is lost on a narrow terminal. Print it with :func:`print_table`.
+    """
+    table = Table(title=title)
+    table.add_column(name, justify="left", no_wrap=True)
+    for col in columns:
+        table.add_column(col, justify="right", overflow="fold")
+    return table
+
+
+def print_table(table: Table, *, console: Console | None = None) -> None:
+    """Print a result table on stdout (or ``console``), whole.
+
+    On a terminal it is fitted to the terminal's width (see :func:`result_table`). Without one (stdout a pipe,
+    a file, a CI log) rich assumes 80 columns, or ``$COLUMNS``, and would squeeze a wide table into them although
+    nothing there has a width: the table is printed at its natural width instead, one line per row.
+    """
+    target = console or stdout
+    if target.is_terminal:
+        target.print(table)
+        return
+    natural = Measurement.get(target, target.options.update_width(10_000), table).maximum
+    if natural <= target.width:
+        target.print(table)
+        return
+    # Console.print(width=) is capped at the console's own width: a console of the table's width on the same file
+    Console(file=target.file, width=natural, color_system=target.color_system, no_color=target.no_color).print(table)
 
 
 def print_json(obj: dict) -> None:

@@ -78,6 +78,18 @@ def register(name: str, description: str) -> Callable:
     return deco
 
 
+def in_family(request: str, name: str) -> bool:
+    """Whether ``--methods`` entry ``request`` selects method ``name``: the name itself, or a family, the name
+    before a ``-`` (``lb`` selects ``lb-32``, ``lb-64`` and ``lb-64-lattice1``; not ``lb+gather``)."""
+    return name == request or name.startswith(request + "-")
+
+
+def families(names: list[str]) -> dict[str, list[str]]:
+    """Each family of ``names`` (the part before the first ``-`` of a variant) -> the methods it selects."""
+    heads = sorted({n.split("-")[0] for n in names if "-" in n})
+    return {head: [n for n in names if in_family(head, n)] for head in heads}
+
+
 def methods() -> list[BenchMethod]:
     """Every registered method, then the planned ones not yet registered (unavailable)."""
     from foliage_tools.bench import methods as pkg

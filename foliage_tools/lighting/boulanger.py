@@ -180,8 +180,9 @@ class LightingResult:
     seconds: float
     """Wall time of :func:`solve`."""
     stats: dict = field(default_factory=dict)
-    """``leaves``, ``sun_smax_mean`` (mean s̃_max toward the sun), ``g3_min``, ``recollision_probability``,
-    ``scatterer_sun`` (``envelope``: eq. (5.24); ``leaves``: the lit fractions), ``all_orders``."""
+    """``leaves``, ``sun_smax_mean`` (mean s̃_max toward the sun), ``g3_min``, ``recollision_probability`` (the
+    p of :func:`higher_orders` with ``all_orders``; None without, where no p enters the result), ``scatterer_sun``
+    (``envelope``: eq. (5.24); ``leaves``: the lit fractions), ``all_orders``."""
 
 
 # --------------------------------------------------------------------------
@@ -453,7 +454,8 @@ def solve(normals, smax, tau, *, up=(0.0, 0.0, 1.0), params: BoulangerParams, sc
     d_front, d_back = sun_direct_irradiance(n, s, tau, sun, dirs)
     s_front, s_back = sun_indirect_irradiance(n, s, tau, sun, optics, dirs, scatterer_sun=scatterer_sun)
     attenuation = np.exp(-tau * s)  # eq. (5.30), for the recollision probability and the sky
-    p_recollide = recollision_probability(attenuation)
+    # p serves the higher orders only: the thesis' one bounce (all_orders False) has none, so it reports none
+    p_recollide = recollision_probability(attenuation) if all_orders else None
     if all_orders:  # ω = ρ̄ / 2, the albedo of a face averaged over the two (eq. (5.19))
         orders = higher_orders(optics.sum(axis=0) / 2.0, p_recollide)
         s_front, s_back = s_front * orders, s_back * orders

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from foliage_tools.errors import FoliageError, OutputError, UsageError
 from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline import bake_warnings
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.direct import DirectChoice
 from foliage_tools.pipeline.gather import check_gather
@@ -153,8 +154,9 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     report.outputs += [str(moved[f.name]) for f in copied]
     for name, r in stages.items():
         report.outputs += r.outputs
-        report.warnings += [f"{name}: {w}" for w in r.warnings]
         report.findings += [f"{name}: {w}" for w in r.findings]
+    # a warning several stages gave (they read the same input) is said once, naming them
+    report.warnings += bake_warnings.merge([(name, r.warnings) for name, r in stages.items()])
     report.stats = {
         "result": str(final),
         "stages": {name: {"seconds": r.seconds, "outputs": r.outputs, "peak_rss_bytes": r.stats.get("peak_rss_bytes")}

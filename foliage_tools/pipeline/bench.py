@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools.bench.metrics import binned_rms, rel_rms
-from foliage_tools.bench.registry import BenchContext, methods
+from foliage_tools.bench.registry import BenchContext, families, in_family, methods
 from foliage_tools.errors import UsageError
 from foliage_tools.geometry.rays import RayScene, count_crossings
 from foliage_tools.lighting.optics import LeafOptics
@@ -56,16 +56,12 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
     all_methods = methods()
     names = [m.name for m in all_methods]
 
-    def matches(request: str, name: str) -> bool:  # a family name selects its variants: lb -> lb-32, lb-64
-        return name == request or name.startswith(request + "-")
-
     if params.methods:
-        unknown = [n for n in params.methods if not any(matches(n, name) for name in names)]
+        unknown = [n for n in params.methods if not any(in_family(n, name) for name in names)]
         if unknown:
-            families = sorted({n.split("-")[0] for n in names if "-" in n})
             raise UsageError(f"--methods: unknown method(s) {', '.join(unknown)}; known: {', '.join(names)} "
-                             f"(or a family: {', '.join(families)}).")
-    selected = [m for m in all_methods if not params.methods or any(matches(r, m.name) for r in params.methods)]
+                             f"(or a family: {', '.join(families(names))}).")
+    selected = [m for m in all_methods if not params.methods or any(in_family(r, m.name) for r in params.methods)]
 
     t0 = time.perf_counter()
     ref = bake_reference(scene, sun, ReferenceParams(optics=params.optics, paths=params.paths, seed=params.seed,

@@ -52,12 +52,15 @@ def vertex_primvar_edits(proto: Prototype, name: str, per_leaf: np.ndarray, *, t
     return edits
 
 
+#: Why per-leaf values cannot be stored on a native instance's meshes: the tail of :func:`native_instance_warning`.
+NATIVE_INSTANCE_REASON = (
+    "cannot be authored on its meshes (below an instanceable prim they are instance proxies, which USD keeps "
+    "read-only); make the prototype editable (not instanceable) to store them."
+)
+
+
 def native_instance_warning(proto: Prototype, what: str) -> str:
-    return (
-        f"prototype <{proto.path}> is a native instance: {what} cannot be authored on its meshes "
-        "(below an instanceable prim they are instance proxies, which USD keeps read-only); make the prototype "
-        "editable (not instanceable) to store them."
-    )
+    return f"prototype <{proto.path}> is a native instance: {what} {NATIVE_INSTANCE_REASON}"
 
 
 def baked_sun_attribute(scene: Scene, index: int, method: str, sun_direction: np.ndarray) -> list[AttributeEdit]:

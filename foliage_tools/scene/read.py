@@ -44,11 +44,31 @@ def open_stage(path: str | os.PathLike) -> Usd.Stage:
     try:
         stage = Usd.Stage.Open(str(p), Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
+        syntax = syntax_error(exc)
+        if syntax is not None:
+            file, line, column, what = syntax
+            where = "" if Path(file).resolve() == p.resolve() else f" (in @{file}@)"
+            raise InputError(f"@{p}@, line {line}, column {column}{where}: not valid USD text: {what}. Fix the file "
+                             "at that place (or export the asset again) and run the command again.") from None
         first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unknown error"
         raise InputError(f"@{p}@: cannot be opened as USD ({first}). Is it a valid USD file?") from None
     if stage is None:
         raise InputError(f"@{p}@: cannot be opened as USD. Is it a valid USD file?")
     return stage
+
+
+#: The position USD's text parser gives a syntax error: ``FILE:LINE:COLUMN: what it expected``.
+_SYNTAX_AT = re.compile(r"^(?P<file>.+?):(?P<line>\d+):(?P<column>\d+): (?P<what>.+)$", re.S)
+
+
+def syntax_error(exc: Tf.ErrorException) -> tuple[str, int, int, str] | None:
+    """(file, line, column, message) of the .usda syntax error among the errors of a failed open, else None."""
+    for error in exc.args:
+        found = _SYNTAX_AT.match(str(getattr(error, "commentary", "")).strip())
+        if found:
+            what = " ".join(found["what"].split()).rstrip(".")
+            return found["file"], int(found["line"]), int(found["column"]), what
+    return None
 
 
 def _matrix(m: Gf.Matrix4d) -> np.ndarray:
