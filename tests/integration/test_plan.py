@@ -51,7 +51,7 @@ def test_plan_counts_every_instance_of_a_forest():
     tris = sum(len(m.triangles) for m in scene.prototypes[0].meshes)
     assert st["instances"] == 16 and st["world_triangles"] == 16 * tris  # the ray scene holds every instance's copy
     assert st["world_memory_bytes"] > 16 * tris * 500
-    # the forest lattice: 16 cells across the crown over the whole forest's extent, a time per stage
+    # the forest lattice: 24 cells across the crown over the whole forest's extent, a time per stage
     assert st["forest"]["nodes"] > 16**3 and st["seconds_estimate"]["forest"] > 0
     alone = json.loads(foliage("plan", EXAMPLE, "--json").stdout)["stats"]
     assert alone["forest"] is None and "forest" not in alone["seconds_estimate"]

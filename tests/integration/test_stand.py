@@ -75,12 +75,13 @@ def stand(tmp_path_factory):
         run_reference(scene, d / f"{name}.ref.usda", ReferenceParams(optics=optics, sun=SUN, paths=paths, seed=5))
         run_lb(scene, d / f"{name}.lb.usda", LBBakeParams(optics=optics, sun=SUN, resolution=32, gather=128, direct=DIRECT))
         run_smax(scene, d / f"{name}.smax.usda", SmaxParams(optics=optics, sun=SUN, direct=DIRECT))
-        run_lb(scene, d / f"{name}.lbf.usda", LBBakeParams(optics=optics, sun=SUN, resolution=32, direct=DIRECT))
+        # the lattice alone (no gather), scaled per instance by the forest lattice
+        run_lb(scene, d / f"{name}.lbf.usda", LBBakeParams(optics=optics, sun=SUN, resolution=32, direct=DIRECT, gather=0))
         out[name] = d
     # the stand traced as its lone tree, as a forest above world.WORLD_MAX_TRIANGLES is
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(world, "WORLD_MAX_TRIANGLES", 0)
-        run_lb(path, d / "stand.lone.lb.usda", LBBakeParams(optics=optics, sun=SUN, resolution=32, direct=DIRECT))
+        run_lb(path, d / "stand.lone.lb.usda", LBBakeParams(optics=optics, sun=SUN, resolution=32, direct=DIRECT, gather=0))
         run_lb(path, d / "stand.lone.lbg.usda", LBBakeParams(optics=optics, sun=SUN, resolution=32, gather=128, direct=DIRECT))
         run_smax(path, d / "stand.lone.smax.usda", SmaxParams(optics=optics, sun=SUN, direct=DIRECT))
     return d
