@@ -6,21 +6,15 @@ These run the real command (``python -m foliage_tools``) in a subprocess.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import pytest
 
 import numpy as np
 from tests.conftest import cards_mesh, sha256, write_mesh_stage
-
-
-def foliage(*args, cwd=None) -> subprocess.CompletedProcess:
-    env = dict(os.environ, XDG_CACHE_HOME=str(Path(tempfile.gettempdir()) / "foliage-test-cache"))
-    return subprocess.run([sys.executable, "-m", "foliage_tools", *map(str, args)], capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
+from tests.helpers.cli import foliage
 
 
 def test_missing_file_exits_2_naming_it(tmp_path):

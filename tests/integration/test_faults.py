@@ -25,8 +25,8 @@ from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.bake import BakeParams, run_bake
 from foliage_tools.scene import atomic
 from foliage_tools.scene.integrity import check_layers, digest
-from tests.integration.test_cli_errors import foliage
-from tests.unit.test_atomic import as_if_dead, hidden, visible
+from tests.helpers.cli import foliage
+from tests.helpers.staging import as_if_dead, dead_pid, hidden, visible
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 BAKE_FILES = [f"tree_small.{n}" for n in
@@ -205,8 +205,6 @@ def test_sigterm_during_the_renames_is_held_until_the_result_is_whole(tmp_path, 
 
 
 def test_the_next_run_removes_what_killed_runs_left_and_says_so(tmp_path, simple_tree):
-    from tests.unit.test_atomic import dead_pid
-
     out = tmp_path / "d.usda"
     killed = foliage_env("density", simple_tree, "-o", out, env={atomic.KILL_ENV: "0"})  # staged and journaled, not moved
     assert killed.returncode == -signal.SIGKILL and len(hidden(tmp_path)) == 1
