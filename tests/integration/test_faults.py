@@ -25,7 +25,7 @@ from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.bake import BakeParams, run_bake
 from foliage_tools.scene import atomic
 from foliage_tools.scene.integrity import check_layers, digest
-from tests.helpers.cli import foliage
+from tests.helpers.cli import foliage, signal_after_line
 from tests.helpers.staging import as_if_dead, dead_pid, hidden, visible
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
@@ -175,21 +175,11 @@ def test_sigterm_and_sighup_interrupt_like_ctrl_c(tmp_path, sig):
     out = tmp_path / "r.usda"
     with subprocess.Popen(
         [sys.executable, "-m", "foliage_tools", "reference", str(EXAMPLE), "-o", str(out), "--paths", "400000000", "-v"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         preexec_fn=lambda: (signal.signal(signal.SIGTERM, signal.SIG_DFL), signal.signal(signal.SIGHUP, signal.SIG_DFL)),
     ) as proc:
-        try:
-            seen = []
-            for line in proc.stderr:  # -v logs each step: signal once the tracing (and so the staging) has started
-                seen.append(line)
-                if "tracing" in line:
-                    break
-            proc.send_signal(sig)
-            _, err = proc.communicate(timeout=120)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-    assert any("tracing" in line for line in seen), seen
+        # -v logs each step: signal once the tracing (and so the staging) has started
+        _, err = signal_after_line(proc, "tracing", sig)
     assert proc.returncode == 130, err
     assert f"interrupted ({sig.name})" in err and "no output was written" in err
     assert list(tmp_path.iterdir()) == []
