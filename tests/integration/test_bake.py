@@ -6,7 +6,7 @@ import pytest
 
 from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.bake import BakeParams, run_bake
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 

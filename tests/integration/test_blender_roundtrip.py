@@ -118,14 +118,14 @@ def test_the_bake_metadata_arrives_as_custom_properties(blender_import):
 def blender_forest(tmp_path_factory):
     """The bundled forest (4 native instances, 12 point-instanced copies of one instanceable tree) under a moved and
     turned default prim, baked (density, lb) and imported into Blender."""
-    from tests.integration.test_native_instance_volumes import _bake, _forest
+    from tests.helpers.forests import bake_density_lb, moved_bundled_forest
 
     python = bpy_python()
     if python is None:
         pytest.skip("no Blender Python: `make setup-bpy` (a venv with `pip install bpy` at .venv-bpy), or set "
                     "FOLIAGE_BPY_PYTHON to the python of a venv that has bpy")
     work = tmp_path_factory.mktemp("blender-forest")
-    final = _bake(_forest(work / "in"), work / "out")
+    final = bake_density_lb(moved_bundled_forest(work / "in"), work / "out")
     r = subprocess.run([str(python), str(PROBE), str(final)], capture_output=True, text=True, timeout=300,
                        cwd=tmp_path_factory.mktemp("blender-cwd"))
     lines = [line for line in r.stdout.splitlines() if line.startswith("PROBE")]
@@ -138,12 +138,12 @@ def test_a_native_instance_forest_volume_arrives_over_each_tree(blender_forest):
     instance's leaves (computed from the instance prims, not from the bake's placements)."""
     from pxr import Usd
 
-    from tests.integration.test_native_instance_volumes import _instance_transforms, _leaf_points_per_instance, _placed_volumes
+    from tests.helpers.forests import instance_transforms, leaf_points_per_instance, placed_volumes
 
     final, probe = blender_forest
     stage = Usd.Stage.Open(str(final))
-    leaves, transforms = _leaf_points_per_instance(stage), _instance_transforms(stage)
-    placing = {str(prim.GetParent().GetName()): inst for inst, prim in _placed_volumes(stage).items()}
+    leaves, transforms = leaf_points_per_instance(stage), instance_transforms(stage)
+    placing = {str(prim.GetParent().GetName()): inst for inst, prim in placed_volumes(stage).items()}
     volumes = [o for o in probe["objects"] if o["type"] == "VOLUME" and o["name"].startswith("FoliageLighting")]
 
     def instance(o):

@@ -6,21 +6,15 @@ These run the real command (``python -m foliage_tools``) in a subprocess.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import pytest
 
 import numpy as np
 from tests.conftest import cards_mesh, sha256, write_mesh_stage
-
-
-def foliage(*args, cwd=None) -> subprocess.CompletedProcess:
-    env = dict(os.environ, XDG_CACHE_HOME=str(Path(tempfile.gettempdir()) / "foliage-test-cache"))
-    return subprocess.run([sys.executable, "-m", "foliage_tools", *map(str, args)], capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
+from tests.helpers.cli import foliage, signal_after_line
 
 
 def test_missing_file_exits_2_naming_it(tmp_path):
@@ -169,28 +163,17 @@ def test_interrupt_exits_130_and_leaves_no_output(tmp_path):
 
     example = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
     out = tmp_path / "r.usda"
-    # The context manager closes the pipes whatever happens (an unclosed pipe fails a later test's warnings
+    # The context manager closes the pipe whatever happens (an unclosed pipe fails a later test's warnings
     # check). SIGINT is reset to its default in the child: a test run started in the background inherits
     # SIGINT ignored (POSIX), and Python then installs no KeyboardInterrupt handler, so the child would
     # trace 400M paths.
     with subprocess.Popen(
         [sys.executable, "-m", "foliage_tools", "reference", str(example), "-o", str(out), "--paths", "400000000", "-v"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     ) as proc:
-        try:
-            # -v logs each step on stderr (no terminal, no bar): interrupt once the tracing has started
-            seen = []
-            for line in proc.stderr:
-                seen.append(line)
-                if "tracing" in line:
-                    break
-            proc.send_signal(signal.SIGINT)
-            _, err = proc.communicate(timeout=120)
-        finally:
-            if proc.poll() is None:  # never leave a 400M-path run behind
-                proc.kill()
-    assert any("tracing" in line for line in seen), seen
+        # -v logs each step on stderr (no terminal, no bar): interrupt once the tracing has started
+        _, err = signal_after_line(proc, "tracing", signal.SIGINT)
     assert proc.returncode == 130, err
     assert "interrupted" in err
     assert list(tmp_path.iterdir()) == []

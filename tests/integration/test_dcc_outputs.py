@@ -191,7 +191,7 @@ def test_a_portable_bake_folder_still_opens_whole_after_a_move(tmp_path):
 def test_volume_purpose_guide_keeps_the_volume_out_of_default_imports_and_the_last_stage_decides(tmp_path):
     from pxr import Usd, UsdGeom
 
-    from tests.integration.test_cli_errors import foliage
+    from tests.helpers.cli import foliage
 
     def purpose(layer):
         stage = Usd.Stage.Open(str(layer))

@@ -13,7 +13,7 @@ from foliage_tools.pipeline.density import run_density
 from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.vdb import read_grid
 from tests.conftest import sha256
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 
 @pytest.fixture(scope="module")

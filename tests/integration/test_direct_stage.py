@@ -17,7 +17,7 @@ from foliage_tools.pipeline.report import Silent
 from foliage_tools.pipeline.smax import SmaxParams, run_smax
 from foliage_tools.pipeline.spp import SppParams, run_spp
 from foliage_tools.pipeline.stage import begin_bake
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "examples"))

@@ -25,8 +25,8 @@ from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.bake import BakeParams, run_bake
 from foliage_tools.scene import atomic
 from foliage_tools.scene.integrity import check_layers, digest
-from tests.integration.test_cli_errors import foliage
-from tests.unit.test_atomic import as_if_dead, hidden, visible
+from tests.helpers.cli import foliage, signal_after_line
+from tests.helpers.staging import as_if_dead, dead_pid, hidden, visible
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 BAKE_FILES = [f"tree_small.{n}" for n in
@@ -175,21 +175,11 @@ def test_sigterm_and_sighup_interrupt_like_ctrl_c(tmp_path, sig):
     out = tmp_path / "r.usda"
     with subprocess.Popen(
         [sys.executable, "-m", "foliage_tools", "reference", str(EXAMPLE), "-o", str(out), "--paths", "400000000", "-v"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         preexec_fn=lambda: (signal.signal(signal.SIGTERM, signal.SIG_DFL), signal.signal(signal.SIGHUP, signal.SIG_DFL)),
     ) as proc:
-        try:
-            seen = []
-            for line in proc.stderr:  # -v logs each step: signal once the tracing (and so the staging) has started
-                seen.append(line)
-                if "tracing" in line:
-                    break
-            proc.send_signal(sig)
-            _, err = proc.communicate(timeout=120)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-    assert any("tracing" in line for line in seen), seen
+        # -v logs each step: signal once the tracing (and so the staging) has started
+        _, err = signal_after_line(proc, "tracing", sig)
     assert proc.returncode == 130, err
     assert f"interrupted ({sig.name})" in err and "no output was written" in err
     assert list(tmp_path.iterdir()) == []
@@ -205,8 +195,6 @@ def test_sigterm_during_the_renames_is_held_until_the_result_is_whole(tmp_path, 
 
 
 def test_the_next_run_removes_what_killed_runs_left_and_says_so(tmp_path, simple_tree):
-    from tests.unit.test_atomic import dead_pid
-
     out = tmp_path / "d.usda"
     killed = foliage_env("density", simple_tree, "-o", out, env={atomic.KILL_ENV: "0"})  # staged and journaled, not moved
     assert killed.returncode == -signal.SIGKILL and len(hidden(tmp_path)) == 1

@@ -16,7 +16,7 @@ if importlib.util.find_spec("pymeshlab") is None:
 
 from foliage_tools.pipeline.import_model import ImportParams, run_import  # noqa: E402
 from foliage_tools.scene.meshfile import CleanOptions  # noqa: E402
-from tests.integration.test_cli_errors import foliage  # noqa: E402
+from tests.helpers.cli import foliage  # noqa: E402
 
 #: A 2 x 0.5 leaf quad in the plane z = 1 (area 1, normal +z), written as two triangles with their own vertices
 #: (as converters write them) and one duplicated triangle; a wood triangle in its own group, by relative indices.
@@ -118,9 +118,9 @@ def test_a_gltf_imports_one_mesh_per_gltf_mesh_classified_by_name(tmp_path):
     assert r.returncode == 0, r.stderr
     import jsonschema
 
-    from tests.integration.test_json_reports import SCHEMA
+    from tests.helpers.cli import REPORT_SCHEMA
 
-    jsonschema.validate(json.loads(r.stdout), SCHEMA)
+    jsonschema.validate(json.loads(r.stdout), REPORT_SCHEMA)
     parts = {p["name"]: p for p in json.loads(r.stdout)["stats"]["parts"]}
     assert parts["Needles"]["leaf"] and parts["Needles"]["triangles"] == 2 and not parts["Trunk"]["leaf"]
     stage = Usd.Stage.Open(str(tmp_path / "t.usda"))

@@ -14,7 +14,7 @@ from foliage_tools.pipeline.report import Silent
 from foliage_tools.pipeline.smax import SmaxParams, run_smax
 from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.scene.read import open_stage
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 DIRECT = DirectChoice(samples=64)

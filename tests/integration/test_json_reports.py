@@ -1,14 +1,12 @@
 """Every ``--json`` report matches schemas/json/report.schema.json (the contract other tools parse)."""
 
 import json
-from pathlib import Path
 
 import jsonschema
 import pytest
 
-from tests.integration.test_cli_errors import foliage
-
-SCHEMA = json.loads((Path(__file__).resolve().parents[2] / "schemas" / "json" / "report.schema.json").read_text())
+from tests.helpers.cli import REPORT_SCHEMA as SCHEMA
+from tests.helpers.cli import foliage
 
 
 @pytest.mark.parametrize("command", ["inspect", "validate", "plan", "density", "smax", "reference", "bench", "lb", "spp"])

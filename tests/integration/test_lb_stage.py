@@ -12,7 +12,7 @@ from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.lb import LBBakeParams, run_lb, sample_trilinear
 from foliage_tools.scene.vdb import grid_names, read_grid
 from tests.conftest import sha256
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 

@@ -13,7 +13,6 @@ from the instance prims, not with the code under test.
 from __future__ import annotations
 
 import re
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -25,104 +24,22 @@ from foliage_tools.pipeline.density import run_density
 from foliage_tools.pipeline.direct import DirectChoice
 from foliage_tools.pipeline.lb import LBBakeParams, run_lb
 from tests.conftest import sha256
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
+from tests.helpers.forests import bake_density_lb, leaf_points_per_instance, moved_bundled_forest, placed_volumes
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 RESOLUTION = 16
 CLASS = "/World/FoliageBakes/Prototypes/Tree_00"
 
 
-def _forest(work: Path) -> Path:
-    from pxr import Gf, Usd, UsdGeom
-
-    work.mkdir(parents=True, exist_ok=True)
-    for name in ("forest_small.usda", "tree_small.usda"):
-        shutil.copy(EXAMPLES / name, work / name)
-    stage = Usd.Stage.Open(str(work / "forest_small.usda"))
-    world = UsdGeom.Xformable(stage.GetPrimAtPath("/World"))
-    world.AddTranslateOp().Set(Gf.Vec3d(6.0, -3.0, 0.5))
-    world.AddRotateZOp().Set(30.0)
-    stage.GetRootLayer().Save()
-    return work / "forest_small.usda"
-
-
-def _bake(forest: Path, out_dir: Path) -> Path:
-    """density, then lb on its output (the lb layer carries the density grids into its own .vdb)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    run_density(forest, out_dir / "f.density.usda", DensityParams(resolution=RESOLUTION))
-    run_lb(out_dir / "f.density.usda", out_dir / "f.lb.usda",
-           # no gather: it traces every instance, so the forest lattice (its .forest.vdb) would not be solved
-           LBBakeParams(optics=parse_leaf_optics(None), resolution=RESOLUTION, direct=DirectChoice(mode="volume"), gather=0))
-    return out_dir / "f.lb.usda"
-
-
 @pytest.fixture(scope="module")
 def baked(tmp_path_factory):
     work = tmp_path_factory.mktemp("natinst")
-    forest = _forest(work / "in")
+    forest = moved_bundled_forest(work / "in")
     inputs = {p: sha256(p) for p in (forest, forest.with_name("tree_small.usda"))}
-    first = _bake(forest, work / "a")
-    second = _bake(forest, work / "b")
+    first = bake_density_lb(forest, work / "a", RESOLUTION)
+    second = bake_density_lb(forest, work / "b", RESOLUTION)
     return forest, inputs, first, second
-
-
-def _leaf_points_per_instance(stage) -> dict[str, np.ndarray]:
-    """World positions of every leaf-mesh point of each instance, from the instance prims' own transforms (pxr)."""
-    from pxr import Gf, Usd, UsdGeom
-
-    t = Usd.TimeCode.Default()
-    xf = UsdGeom.XformCache(t)
-
-    def leaf_points(root):
-        # (points of the leaf mesh, mesh-to-root matrix), through the instance proxies below an instanceable root
-        for prim in Usd.PrimRange(root, Usd.TraverseInstanceProxies()):
-            if prim.IsA(UsdGeom.Mesh) and prim.GetName() == "Leaves":
-                rel, _ = xf.ComputeRelativeTransform(prim, root)
-                yield np.array(UsdGeom.Mesh(prim).GetPointsAttr().Get(), dtype=np.float64), rel
-
-    def apply(points, m: Gf.Matrix4d) -> np.ndarray:  # Gf is row-vector
-        m = np.array(m)
-        return points @ m[:3, :3] + m[3, :3]
-
-    out = {}
-    for n in range(4):
-        inst = stage.GetPrimAtPath(f"/World/Trees/Tree_{n:02d}")
-        world = xf.GetLocalToWorldTransform(inst)
-        out[str(inst.GetPath())] = np.concatenate([apply(p, rel * world) for p, rel in leaf_points(inst)])
-    pi = UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Grove"))
-    proto = stage.GetPrimAtPath(pi.GetPrototypesRel().GetTargets()[0])
-    pi_world = xf.GetLocalToWorldTransform(pi.GetPrim())
-    placed = pi.ComputeInstanceTransformsAtTime(t, t, UsdGeom.PointInstancer.IncludeProtoXform)
-    meshes = list(leaf_points(proto))
-    for i, m in enumerate(placed):
-        out[f"/World/Grove[{i}]"] = np.concatenate([apply(p, rel * m * pi_world) for p, rel in meshes])
-    return out
-
-
-def _instance_transforms(stage) -> dict[str, np.ndarray]:
-    """World-from-prototype (4, 4) of each instance, column-vector convention, from the instance prims (pxr)."""
-    from pxr import Usd, UsdGeom
-
-    t = Usd.TimeCode.Default()
-    xf = UsdGeom.XformCache(t)
-    out = {f"/World/Trees/Tree_{n:02d}": np.array(xf.GetLocalToWorldTransform(stage.GetPrimAtPath(f"/World/Trees/Tree_{n:02d}"))).T
-           for n in range(4)}
-    pi = UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Grove"))
-    pi_world = xf.GetLocalToWorldTransform(pi.GetPrim())
-    for i, m in enumerate(pi.ComputeInstanceTransformsAtTime(t, t, UsdGeom.PointInstancer.IncludeProtoXform)):
-        out[f"/World/Grove[{i}]"] = np.array(m * pi_world).T
-    return out
-
-
-def _placed_volumes(stage) -> dict[str, object]:
-    """foliage:instance -> the Volume prim placed over it, as a DCC traverses the stage (class prims skipped)."""
-    from pxr import UsdVol
-
-    out = {}
-    for prim in stage.Traverse():
-        if prim.IsA(UsdVol.Volume) and prim.GetName() == "FoliageLighting":
-            out[prim.GetParent().GetAttribute("foliage:instance").Get()] = prim
-    return out
 
 
 def test_each_instance_gets_a_volume_whose_world_box_holds_its_leaves_and_little_else(baked):
@@ -130,8 +47,8 @@ def test_each_instance_gets_a_volume_whose_world_box_holds_its_leaves_and_little
 
     _, _, final, _ = baked
     stage = Usd.Stage.Open(str(final))
-    leaves = _leaf_points_per_instance(stage)
-    volumes = _placed_volumes(stage)
+    leaves = leaf_points_per_instance(stage)
+    volumes = placed_volumes(stage)
     assert set(volumes) == set(leaves) and len(volumes) == 16  # 4 native instances + 12 point-instanced copies
     cache = UsdGeom.BBoxCache(Usd.TimeCode.Default(), [UsdGeom.Tokens.default_])
     for inst, prim in volumes.items():
@@ -161,7 +78,7 @@ def test_the_volumes_share_one_class_and_one_vdb_and_nothing_is_drawn_at_the_ori
     assert cls and cls.IsAbstract() and cls.GetSpecifier() == Sdf.SpecifierClass
     drawn = [p for p in stage.Traverse() if p.IsA(UsdVol.Volume)]
     assert all(not p.GetPath().HasPrefix(Sdf.Path(CLASS)) for p in drawn)  # the prototype-space volume is not drawn
-    volumes = _placed_volumes(stage)
+    volumes = placed_volumes(stage)
     files = set()
     for prim in volumes.values():
         # the placing prim references the class (an internal reference), it holds no copy of the fields
@@ -234,7 +151,7 @@ def test_a_later_stage_authors_only_the_placements_that_changed(tmp_path):
     grids), and re-authors, whole, the one of an instance that moved in between."""
     from pxr import Gf, Sdf, Usd, UsdGeom
 
-    forest = _forest(tmp_path / "in")
+    forest = moved_bundled_forest(tmp_path / "in")
     run_density(forest, tmp_path / "a.usda", DensityParams(resolution=RESOLUTION))
     moved = tmp_path / "moved.usda"
     layer = Sdf.Layer.CreateNew(str(moved))
@@ -249,8 +166,8 @@ def test_a_later_stage_authors_only_the_placements_that_changed(tmp_path):
     instances = authored.GetPrimAtPath("/World/FoliageBakes/Instances")
     assert [p.name for p in instances.nameChildren] == ["Trees_Tree_01"]
     result = Usd.Stage.Open(str(tmp_path / "b.usda"))
-    volumes = _placed_volumes(result)
-    leaves = _leaf_points_per_instance(result)
+    volumes = placed_volumes(result)
+    leaves = leaf_points_per_instance(result)
     cache = UsdGeom.BBoxCache(Usd.TimeCode.Default(), [UsdGeom.Tokens.default_])
     for inst in ("/World/Trees/Tree_01", "/World/Trees/Tree_02"):
         r = cache.ComputeWorldBound(volumes[inst]).ComputeAlignedRange()

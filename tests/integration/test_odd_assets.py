@@ -19,7 +19,7 @@ from foliage_tools.errors import InputError
 from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.validate import ERROR, validate
 from tests.conftest import cards_mesh, write_mesh_stage
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 WOOD = {"points": [(0, 0, 0), (0.05, 0, 0), (0, 0, 1.0)], "counts": [3], "indices": [0, 1, 2], "isLeaf": False}
 

@@ -5,7 +5,7 @@ import json
 import pytest
 from pathlib import Path
 
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 

@@ -5,6 +5,7 @@ import pytest
 
 from foliage_tools.scene.read import read_scene
 from tests.conftest import cards_mesh, write_mesh_stage
+from tests.helpers.forests import mixed_forest
 
 
 def test_oak_has_1831_leaves_and_two_wood_meshes(oak):
@@ -74,40 +75,8 @@ def test_units_and_up_axis_are_recorded(tmp_path):
     assert scene.prototypes[0].leaves.areas[0] == pytest.approx(100.0, rel=1e-6)
 
 
-def _forest(tmp_path):
-    """3 native instances of one asset + a PointInstancer with 2 prototypes, 5 instances, one masked."""
-    from pxr import Gf, Usd, UsdGeom, Vt
-
-    write_mesh_stage(tmp_path / "asset.usda", {"Leaves": {**cards_mesh([(0, 0, 1), (0.3, 0, 1)]), "isLeaf": True}})
-    stage = Usd.Stage.CreateNew(str(tmp_path / "forest.usda"))
-    UsdGeom.SetStageUpAxis(stage, "Z")
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    UsdGeom.Xform.Define(stage, "/World")
-    for i in range(3):
-        x = UsdGeom.Xform.Define(stage, f"/World/Tree_{i}")
-        x.GetPrim().GetReferences().AddReference("./asset.usda")
-        x.GetPrim().SetInstanceable(True)
-        x.AddTranslateOp().Set(Gf.Vec3d(10.0 * i, 0, 0))
-    pi = UsdGeom.PointInstancer.Define(stage, "/World/Grove")
-    a = UsdGeom.Xform.Define(stage, "/World/Grove/Protos/A")
-    a.GetPrim().GetReferences().AddReference("./asset.usda")
-    a.AddTranslateOp().Set(Gf.Vec3d(0, 0, 100))  # prototype root transform: applied per instance
-    b = UsdGeom.Xform.Define(stage, "/World/Grove/Protos/B")
-    leaves = UsdGeom.Mesh.Define(stage, "/World/Grove/Protos/B/Leaves")
-    m = cards_mesh([(0, 0, 2)])
-    leaves.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(m["points"].astype(np.float32)))
-    leaves.CreateFaceVertexCountsAttr(m["counts"])
-    leaves.CreateFaceVertexIndicesAttr(m["indices"])
-    pi.CreatePrototypesRel().SetTargets([a.GetPath(), b.GetPath()])
-    pi.CreateProtoIndicesAttr([0, 1, 0, 1, 0])
-    pi.CreatePositionsAttr([Gf.Vec3f(0, 50 + i, 0) for i in range(5)])
-    pi.DeactivateIds([1])  # masked: must not shift the others' prototypes
-    stage.GetRootLayer().Save()
-    return tmp_path / "forest.usda"
-
-
 def test_instances_share_one_prototype_read(tmp_path):
-    scene, _ = read_scene(_forest(tmp_path))
+    scene, _ = read_scene(mixed_forest(tmp_path))
     kinds = sorted((p.kind, p.leaves.count) for p in scene.prototypes)
     # one native prototype for the 3 instanceable references, 2 point-instancer prototypes
     assert kinds == [("instance", 2), ("pointinstancer", 1), ("pointinstancer", 2)]
@@ -119,7 +88,7 @@ def test_instances_share_one_prototype_read(tmp_path):
 def test_invisible_point_instances_are_left_out_like_inactive_ones(tmp_path):
     from pxr import Usd, UsdGeom
 
-    path = _forest(tmp_path)
+    path = mixed_forest(tmp_path)
     stage = Usd.Stage.Open(str(path))
     UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Grove")).InvisIds([3], Usd.TimeCode.Default())  # (no ids: index = id)
     stage.GetRootLayer().Save()
@@ -129,7 +98,7 @@ def test_invisible_point_instances_are_left_out_like_inactive_ones(tmp_path):
 
 
 def test_instance_transforms_place_leaves_in_the_world(tmp_path):
-    scene, _ = read_scene(_forest(tmp_path))
+    scene, _ = read_scene(mixed_forest(tmp_path))
 
     def world_centers(inst):
         c = scene.prototypes[inst.prototype].leaves.centers

@@ -11,7 +11,7 @@ import pytest
 from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.smax import SmaxParams, run_smax
 from tests.conftest import sha256
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 

@@ -25,7 +25,7 @@ from foliage_tools.pipeline.report import Silent
 from foliage_tools.pipeline.spp import SppParams, bake_spp
 from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.scene.model import Instance
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "tree_small.usda"

@@ -9,7 +9,7 @@ import numpy as np
 from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.spp import SppParams, run_spp
 from foliage_tools.scene.vdb import grid_names, read_grid
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 

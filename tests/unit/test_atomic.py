@@ -14,7 +14,6 @@ import fcntl
 import os
 import shutil
 import signal
-import subprocess
 import tempfile
 from pathlib import Path
 
@@ -29,30 +28,7 @@ from foliage_tools.scene.integrity import check_layer, digest
 from foliage_tools.scene.vdb import Grid
 from foliage_tools.scene.write import LayerEdits, VolumeEdit, stage_metadata, write_layer
 from tests.conftest import cards_mesh, write_mesh_stage
-
-
-def dead_pid() -> int:
-    """The id of a process that has exited (and been reaped)."""
-    p = subprocess.Popen(["true"])
-    p.wait()
-    return p.pid
-
-
-def visible(directory: Path) -> dict[str, str]:
-    return {p.name: digest(p) for p in directory.iterdir() if p.is_file() and not p.name.startswith(".")}
-
-
-def hidden(directory: Path) -> list[str]:
-    return [p.name for p in directory.iterdir() if p.name.startswith(".")]
-
-
-def as_if_dead(directory: Path) -> None:
-    """Give the staging directories in ``directory`` the id of a process that is gone (the killed run)."""
-    pid = dead_pid()
-    for p in directory.iterdir():
-        m = atomic._STAGING.fullmatch(p.name)
-        if m:
-            p.rename(p.with_name(f".{m['label']}.tmp-{pid}-{m['token']}"))
+from tests.helpers.staging import as_if_dead, dead_pid, hidden, visible
 
 
 def edits(out: Path, volumes: int, value: float) -> LayerEdits:

@@ -21,21 +21,10 @@ from foliage_tools.lighting.envelope import (
     sample_frame,
     solve,
 )
+from tests.helpers.crowns import uniform_ball
 
 REFERENCE = EnvelopeParams(path="reference")
 FAST = EnvelopeParams(path="fast")
-
-
-def uniform_ball(n: int, *, tau: float = 2.0, radius: float = 1.0, seed: int = 1):
-    """n leaves uniform in a ball, uniform orientation, area A = 2 τ / ρ (eq. (5.5))."""
-    rng = np.random.default_rng(seed)
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    centres = d * radius * rng.uniform(size=(n, 1)) ** (1.0 / 3.0)
-    normals = rng.normal(size=(n, 3))
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    density = n / (4.0 / 3.0 * math.pi * radius**3)
-    return centres, normals, np.full(n, 2.0 * tau / density)
 
 
 def distance_to_sphere(centres, directions, radius=1.0):

@@ -14,7 +14,7 @@ import numpy as np
 import scipy.fft
 
 from foliage_tools.lighting import envelope as env
-from tests.unit.test_envelope import uniform_ball
+from tests.helpers.crowns import uniform_ball
 
 
 def test_pruned_transforms_match_scipy():

@@ -15,7 +15,7 @@ from foliage_tools.geometry.sun import to_prototype_space
 from foliage_tools.lighting.lattice import barycentric_weights
 from foliage_tools.preview.camera import direction_from_angles, orbit_camera
 from foliage_tools.preview.renderer import DrawMesh, DrawPrototype, DrawScene, Lighting, Renderer
-from tests.unit.test_preview_smax import OPTICS, crown
+from tests.helpers.crowns import OPTICS, crown
 
 Z = np.array([0.0, 0.0, 1.0])
 

@@ -25,37 +25,12 @@ from foliage_tools.lighting import boulanger
 from foliage_tools.lighting.envelope import EnvelopeParams, sample_directions
 from foliage_tools.lighting.envelope import solve as envelope_solve
 from foliage_tools.preview.camera import direction_from_angles, orbit_camera
-from foliage_tools.preview.optics import LeafOptics, SurfaceOptics
-from foliage_tools.preview.renderer import DrawMesh, DrawPrototype, DrawScene, Ground, Lighting, Renderer, face_normals
+from foliage_tools.preview.renderer import DrawMesh, DrawPrototype, DrawScene, Ground, Lighting, Renderer
 from foliage_tools.preview.tonemap import luminance
+from tests.helpers.crowns import OPTICS, crown
 
 Z = np.array([0.0, 0.0, 1.0])
-OPTICS = SurfaceOptics(
-    leaf=LeafOptics(
-        reflectance_front=(0.10, 0.20, 0.30),
-        reflectance_back=(0.05, 0.06, 0.07),
-        transmittance_front=(0.02, 0.03, 0.04),
-        transmittance_back=(0.11, 0.12, 0.13),
-        specular=0.0,
-    ),
-    ground_reflectance=(0.2, 0.3, 0.4),
-)
 SKY = (0.3, 0.4, 0.5)
-
-
-def crown(n=300, seed=5, radius=1.0, side=0.15):
-    """(6n, 3) float32 corners of n random cards in a ball, their centres, unit normals and areas."""
-    rng = np.random.default_rng(seed)
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    c = d * radius * rng.uniform(size=(n, 1)) ** (1 / 3) + [0.0, 0.0, 2.0]
-    q, r = np.linalg.qr(rng.normal(size=(n, 3, 3)))
-    q = q * np.sign(np.diagonal(r, axis1=1, axis2=2))[:, None, :]
-    u, v = q[:, :, 0] * side / 2, q[:, :, 1] * side / 2
-    a, b, cc, dd = c - u - v, c + u - v, c + u + v, c - u + v
-    corners = np.stack([a, b, cc, a, cc, dd], axis=1).reshape(-1, 3).astype(np.float32)
-    normals = face_normals(corners)[::6].astype(np.float64)
-    return corners, c, normals, np.full(n, side * side)
 
 
 def transforms():

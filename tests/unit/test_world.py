@@ -4,11 +4,11 @@ import numpy as np
 
 from foliage_tools.pipeline.world import assemble, prototype_means
 from foliage_tools.scene.read import read_scene
-from tests.integration.test_scene_read import _forest
+from tests.helpers.forests import mixed_forest
 
 
 def test_forest_world_has_every_instance_with_offset_leaf_ids(tmp_path):
-    scene, _ = read_scene(_forest(tmp_path))
+    scene, _ = read_scene(mixed_forest(tmp_path))
     world = assemble(scene)
     total = sum(scene.prototypes[i.prototype].leaves.count for i in scene.instances)
     assert world.offsets[-1] == total == world.leaf_area.shape[0]
@@ -23,7 +23,7 @@ def test_forest_world_has_every_instance_with_offset_leaf_ids(tmp_path):
 
 
 def test_prototype_means_average_over_instances(tmp_path):
-    scene, _ = read_scene(_forest(tmp_path))
+    scene, _ = read_scene(mixed_forest(tmp_path))
     world = assemble(scene)
     per_leaf = np.arange(world.offsets[-1], dtype=float)
     means = prototype_means(world, per_leaf, len(scene.prototypes), [p.leaves.count for p in scene.prototypes])
@@ -33,7 +33,7 @@ def test_prototype_means_average_over_instances(tmp_path):
 
 
 def test_world_leaf_centres_are_the_prototype_centres_placed_by_each_instance(tmp_path):
-    scene, _ = read_scene(_forest(tmp_path))
+    scene, _ = read_scene(mixed_forest(tmp_path))
     world = assemble(scene)
     for n, inst in enumerate(scene.instances):
         c = scene.prototypes[inst.prototype].leaves.centers
