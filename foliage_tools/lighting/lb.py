@@ -1456,7 +1456,9 @@ class _Operator:
         self.L = self.G * nz * self.K  # a block's run
         self.state_shape = (nx, self.NB, NQ, self.C, self.G * nz, self.K)
         self.lattice = problem.lattice
-        self.rho = np.ascontiguousarray(problem.density, dtype=self.dtype)
+        # always a writable copy: the problem's read-only array would be another numba type (a second compile of
+        # every kernel for float64, which passed it through)
+        self.rho = np.array(problem.density, dtype=self.dtype, order="C")
         # the non-axial steps' own density on the ordinates lattice (collision: rho_d = 1 - (1 - rho)^sqrt2)
         self.rhod = (np.ascontiguousarray(diagonal_density(problem.density), dtype=self.dtype)
                      if problem.lattice == "ordinates" else self.rho)
