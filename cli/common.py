@@ -258,25 +258,28 @@ def gather_option(later_bounces: str, replaces: str) -> Callable:
     )
 
 
-def parse_gather(ctx: click.Context, param: click.Parameter, value) -> int | None:
+def _auto_or_whole(value, ctx: click.Context, param: click.Parameter) -> int | None:
+    """None for ``auto`` (or no value), else the whole number the flag's text gives."""
     if value is None or str(value).strip().lower() == "auto":
         return None
     try:
-        k = int(str(value).strip())
+        return int(str(value).strip())
     except ValueError:
-        raise click.BadParameter(f"{value!r}: give 'auto', 0 (off) or a number of rays per leaf (a multiple of 4).") from None
-    if k < 0:
-        raise click.BadParameter(f"{k}: give 'auto', 0 (off) or a number of rays per leaf (a multiple of 4).")
+        raise click.BadParameter(f"{value!r} is neither 'auto' nor a whole number.", ctx=ctx, param=param) from None
+
+
+def parse_gather(ctx: click.Context, param: click.Parameter, value) -> int | None:
+    k = _auto_or_whole(value, ctx, param)
+    if k is not None and k < 0:
+        raise click.BadParameter(f"{k}: give 'auto', 0 (off) or a number of rays per leaf (a multiple of 4).",
+                                 ctx=ctx, param=param)
     return k
 
 
 def parse_direct_samples(ctx: click.Context, param: click.Parameter, value) -> int | None:
-    if value is None or str(value).strip().lower() == "auto":
+    k = _auto_or_whole(value, ctx, param)
+    if k is None:
         return None
-    try:
-        k = int(str(value).strip())
-    except ValueError:
-        raise click.BadParameter(f"{value!r} is neither 'auto' nor a whole number.", ctx=ctx, param=param) from None
     from foliage_tools.lighting.direct import MAX_SAMPLES
 
     if k < 2 or k % 2 or k > MAX_SAMPLES:
