@@ -33,7 +33,10 @@ tree must fall into the cells as its instances do: it is solved turned as up to
 ``ALONE_ROTATIONS`` of them, on world-aligned grids, and averaged
 (``_alone_means``). What does not cancel is the coarse grid's homogenisation
 of the stand: at 8 cells per crown the stand's crown means read +6 % where the
-lone tree's are right (5 x 5 stand), +2.4 % at 16, 0 at 24.
+lone tree's are right (5 x 5 stand), +2.4 % at 16, 0 at 24. Where MAX_NODES
+makes the grid coarser than ``CELLS_PER_CROWN``, that bias is measured on the
+instances nearest the stand's centre, solved apart at both cell sizes, and
+divided out (``_calibration``).
 """
 
 from __future__ import annotations
@@ -67,6 +70,10 @@ TOLERANCE, DIRECTIONS = 1e-3, 16
 #: Placements of a prototype its lone solve is turned by (``_alone_means``); their spread on the 5 x 5 stand was
 #: +-0.7 % of the crown mean, so 8 hold the mean to ~0.3 %.
 ALONE_ROTATIONS = 8
+#: Where the MAX_NODES cap leaves the stand's grid coarser than CELLS_PER_CROWN, the factors are divided by the
+#: grid's own bias, measured on this many instances nearest the stand's centre solved apart at both cell sizes
+#: (_calibration): on the 5 x 5 stand the factors read 1.062 of the reference's at 8 cells, 0.997 at 24.
+CALIBRATION_INSTANCES = 25
 #: Most nodes of the stand's grid: above it the cells grow (and the factor gets cruder; 10 000 crowns get ~5 cells
 #: across), so the solve holds ~2-3 GB.
 MAX_NODES = 4_000_000
@@ -86,12 +93,15 @@ class ForestLight:
     """(N, 3) per instance: its direct light in the stand over the same tree's alone (the neighbours' shade;
     used where the shadow rays trace the lone trees, ``world.bake_world``)."""
     seconds: float
+    calibration: np.ndarray | None = None
+    """(2C,) the capped grid's bias the factors were divided by (scattered, then direct); None: not capped."""
 
     def stats(self) -> dict:
         return {"grid": list(self.grid.shape), "voxel_size": self.grid.voxel_size, "seconds": self.seconds,
                 "factor_min": self.factors.min(axis=0).tolist(), "factor_max": self.factors.max(axis=0).tolist(),
                 "direct_factor_min": self.direct_factors.min(axis=0).tolist(),
-                "direct_factor_max": self.direct_factors.max(axis=0).tolist()}
+                "direct_factor_max": self.direct_factors.max(axis=0).tolist(),
+                "calibration": None if self.calibration is None else self.calibration.tolist()}
 
 
 def forest_volume(scene: Scene, forest: ForestLight, vdb_file, purpose: str, method: str):
@@ -218,27 +228,65 @@ def _alone_means(leaves, placements: np.ndarray, voxel: float, sun_dir: np.ndarr
     return np.mean(means, axis=0)
 
 
+def _leaf_box_corners(leaves, placements: np.ndarray) -> np.ndarray:
+    """(2, 3) world min and max of the placed leaf boxes of one prototype."""
+    c = leaves.centers
+    lo, hi = c.min(axis=0), c.max(axis=0)
+    box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    w = np.einsum("kij,lj->kli", placements[:, :3, :3], box) + placements[:, None, :3, 3]
+    return np.array([w.min(axis=(0, 1)), w.max(axis=(0, 1))])
+
+
+def _ratios(scene: Scene, placements: dict[int, np.ndarray], grid: GridSpec, sun_dir: np.ndarray, optics: LeafOptics,
+            tolerance: float):
+    """Per prototype, (N_i, 2C) stand over alone of u_s and the beam for the placements on ``grid``; and the stand's
+    u_s and leaf-area density."""
+    lad = np.zeros(grid.shape)
+    for i, m in placements.items():
+        leaves = scene.prototypes[i].leaves
+        placed.deposit(grid, m, leaves.centers, leaves.areas, out=lad)
+    stand, stand_beam = _solve(lad, grid, sun_dir, optics, tolerance)
+    both = np.concatenate([stand, stand_beam], axis=-1)  # one pass over the placed leaves for the two fields
+    out = {}
+    for i, m in placements.items():
+        leaves = scene.prototypes[i].leaves
+        in_stand = placed.instance_means(both, grid, m, leaves.centers, leaves.areas)
+        alone = _alone_means(leaves, m, grid.voxel_size, sun_dir, optics, tolerance)
+        out[i] = np.divide(in_stand, alone, out=np.ones_like(in_stand), where=alone > 0)
+    return out, stand, lad
+
+
+def _calibration(scene: Scene, baked: list[int], voxel: float, sun_dir: np.ndarray, optics: LeafOptics,
+                 tolerance: float) -> np.ndarray:
+    """(2C,) how much the stand's grid, coarser than ``CELLS_PER_CROWN`` (the MAX_NODES cap), overstates the
+    factors: on the ``CALIBRATION_INSTANCES`` instances nearest the stand's centre, solved apart at that voxel and
+    at ``CELLS_PER_CROWN``, the mean ratio of their factors."""
+    t = np.stack([inst.transform[:3, 3] for inst in scene.instances])
+    near = set(np.argsort(np.linalg.norm(t - t.mean(axis=0), axis=1))[:CALIBRATION_INSTANCES].tolist())
+    window = {i: np.stack([inst.transform for k, inst in enumerate(scene.instances) if inst.prototype == i and k in near])
+              for i in baked if any(inst.prototype == i and k in near for k, inst in enumerate(scene.instances))}
+    crown = max(float(np.ptp(scene.prototypes[i].leaves.centers, axis=0).max()) for i in baked)
+    corners = np.concatenate([_leaf_box_corners(scene.prototypes[i].leaves, m) for i, m in window.items()])
+    coarse, _, _ = _ratios(scene, window, _grid_over(corners, voxel), sun_dir, optics, tolerance)
+    fine, _, _ = _ratios(scene, window, _grid_over(corners, crown / CELLS_PER_CROWN), sun_dir, optics, tolerance)
+    r = np.concatenate([coarse[i] / np.where(fine[i] > 0, fine[i], 1.0) for i in window])
+    return r.mean(axis=0)
+
+
 def _forest_light(scene: Scene, sun: Sun, optics: LeafOptics, tolerance: float) -> ForestLight:
     t0 = time.perf_counter()
     baked = [i for i, p in enumerate(scene.prototypes) if p.leaves.count and scene.instances_of(i)]
     grid = stand_grid(scene)
-    voxel = grid.voxel_size
     placements = {i: np.stack([inst.transform for inst in scene.instances_of(i)]) for i in baked}
-    lad = np.zeros(grid.shape)
+    ratios, stand, lad = _ratios(scene, placements, grid, sun.direction, optics, tolerance)
+    crown = max(float(np.ptp(scene.prototypes[i].leaves.centers, axis=0).max()) for i in baked)
+    calibrate = crown / grid.voxel_size < 0.9 * CELLS_PER_CROWN and len(scene.instances) > CALIBRATION_INSTANCES
+    bias = _calibration(scene, baked, grid.voxel_size, sun.direction, optics, tolerance) if calibrate else 1.0
+    n, c = len(scene.instances), stand.shape[-1]
+    factors, direct_factors = np.ones((n, c)), np.ones((n, c))
     for i in baked:
-        leaves = scene.prototypes[i].leaves
-        placed.deposit(grid, placements[i], leaves.centers, leaves.areas, out=lad)
-    stand, stand_beam = _solve(lad, grid, sun.direction, optics, tolerance)
-    lad = lad.astype(np.float32)
-    both = np.concatenate([stand, stand_beam], axis=-1)  # one pass over the placed leaves for the two fields
-    n = len(scene.instances)
-    factors, direct_factors = np.ones((n, stand.shape[-1])), np.ones((n, stand.shape[-1]))
-    for i in baked:
-        leaves = scene.prototypes[i].leaves
-        in_stand = placed.instance_means(both, grid, placements[i], leaves.centers, leaves.areas)
-        alone = _alone_means(leaves, placements[i], voxel, sun.direction, optics, tolerance)
         ks = [k for k, inst in enumerate(scene.instances) if inst.prototype == i]
-        ratio = np.divide(in_stand, alone, out=np.ones_like(in_stand), where=alone > 0)
-        c = stand.shape[-1]
+        ratio = ratios[i] / bias
         factors[ks], direct_factors[ks] = ratio[:, :c], ratio[:, c:]
-    return ForestLight(grid, stand, lad, factors, direct_factors, time.perf_counter() - t0)
+    return ForestLight(grid, stand, lad.astype(np.float32), factors, direct_factors, time.perf_counter() - t0,
+                       np.asarray(bias) if calibrate else None)
