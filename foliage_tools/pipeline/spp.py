@@ -491,7 +491,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
-        "gather": {**gathered.stats(), "on": best_name} if gathered is not None else None,
+        "gather": {**gathered.stats(), "on": best_name} if gathered is not None else {"rays_per_leaf": 0},  # 0: off
         "forest": forest.stats() if forest is not None else None,
     }
     return report.finish()
