@@ -39,7 +39,7 @@ DIRECT_MODES = ("rays", "volume")
 AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET = 16, 1024, 1 << 24
 
 
-def _within_budget(count: int, low: int, high: int, budget: int) -> int:
+def within_budget(count: int, low: int, high: int, budget: int) -> int:
     """The largest power of two from ``high`` down to ``low`` whose ``count`` multiples stay within ``budget``."""
     k = high
     while k > low and k * count > budget:
@@ -49,7 +49,7 @@ def _within_budget(count: int, low: int, high: int, budget: int) -> int:
 
 def auto_samples(leaves: int) -> int:
     """Samples per leaf for ``--direct-samples auto`` (see :data:`AUTO_RAY_BUDGET`)."""
-    return _within_budget(leaves, AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET)
+    return within_budget(leaves, AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET)
 
 
 @dataclass(frozen=True, eq=False)
@@ -146,7 +146,7 @@ INSTANCE_MIN, INSTANCE_MAX, INSTANCE_RAY_BUDGET = 256, 4096, 1 << 26
 
 def instance_samples(instances: int) -> int:
     """Shadow rays per instance of :func:`instance_direct` (:data:`INSTANCE_RAY_BUDGET`)."""
-    return _within_budget(instances, INSTANCE_MIN, INSTANCE_MAX, INSTANCE_RAY_BUDGET)
+    return within_budget(instances, INSTANCE_MIN, INSTANCE_MAX, INSTANCE_RAY_BUDGET)
 
 
 def instance_direct(scene: Scene, sun: Sun, progress: Progress, *, seed: int = 0) -> direct.InstanceDirect:

@@ -16,6 +16,7 @@ from foliage_tools.errors import UsageError
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.lighting import gather
 from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.direct import within_budget
 from foliage_tools.pipeline.instances import from_prototypes
 from foliage_tools.pipeline.report import Progress
 from foliage_tools.pipeline.world import World, bake_world, prototype_means, traced_parts
@@ -35,10 +36,7 @@ def auto_rays(leaves: int) -> int:
     """Rays per leaf for ``--gather auto`` over ``leaves`` traced leaves; 0 (off) above the budget."""
     if leaves * AUTO_MIN > AUTO_RAY_BUDGET:
         return 0
-    k = AUTO_MAX
-    while k > AUTO_MIN and k * leaves > AUTO_RAY_BUDGET:
-        k //= 2
-    return k
+    return within_budget(leaves, AUTO_MIN, AUTO_MAX, AUTO_RAY_BUDGET)
 
 
 def check_gather(rays: int | None) -> None:
