@@ -182,21 +182,33 @@ def _fingerprint(scene: Scene) -> str:
     return h.hexdigest()
 
 
+def _baked(scene: Scene) -> list[int]:
+    """The prototypes with leaves and instances."""
+    return [i for i, p in enumerate(scene.prototypes) if p.leaves.count and scene.instances_of(i)]
+
+
+def _crown(scene: Scene, baked: list[int]) -> float:
+    """The longest edge of the largest baked prototype's leaf box (what ``CELLS_PER_CROWN`` divides)."""
+    return max(float(np.ptp(scene.prototypes[i].leaves.centers, axis=0).max()) for i in baked)
+
+
+def _leaf_box_corners(leaves, placements: np.ndarray) -> np.ndarray:
+    """(2, 3) world min and max of the placed leaf boxes of one prototype."""
+    c = leaves.centers
+    lo, hi = c.min(axis=0), c.max(axis=0)
+    box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    w = np.einsum("kij,lj->kli", placements[:, :3, :3], box) + placements[:, None, :3, 3]
+    return np.array([w.min(axis=(0, 1)), w.max(axis=(0, 1))])
+
+
 def stand_grid(scene: Scene) -> GridSpec:
     """The stand's coarse world grid: ``CELLS_PER_CROWN`` cells across the largest prototype's leaves, over the
     bounds of every instance's leaf box, coarser when that holds more than ``MAX_NODES`` nodes."""
-    baked = [i for i, p in enumerate(scene.prototypes) if p.leaves.count and scene.instances_of(i)]
-    crown = max(float(np.ptp(scene.prototypes[i].leaves.centers, axis=0).max()) for i in baked)
-    voxel = max(crown, 1e-9) / CELLS_PER_CROWN
-    corners = []
-    for i in baked:
-        c = scene.prototypes[i].leaves.centers
-        lo, hi = c.min(axis=0), c.max(axis=0)
-        box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-        m = np.stack([inst.transform for inst in scene.instances_of(i)])
-        w = np.einsum("kij,lj->kli", m[:, :3, :3], box) + m[:, None, :3, 3]
-        corners += [w.min(axis=(0, 1)), w.max(axis=(0, 1))]
-    corners = np.array(corners)
+    baked = _baked(scene)
+    voxel = max(_crown(scene, baked), 1e-9) / CELLS_PER_CROWN
+    corners = np.concatenate([_leaf_box_corners(scene.prototypes[i].leaves,
+                                                np.stack([inst.transform for inst in scene.instances_of(i)]))
+                              for i in baked])
     span = np.ptp(corners, axis=0) + 2 * voxel
     if np.prod(np.ceil(span / voxel) + 1) > MAX_NODES:
         voxel = float((np.prod(span) / MAX_NODES) ** (1 / 3))
@@ -228,15 +240,6 @@ def _alone_means(leaves, placements: np.ndarray, voxel: float, sun_dir: np.ndarr
     return np.mean(means, axis=0)
 
 
-def _leaf_box_corners(leaves, placements: np.ndarray) -> np.ndarray:
-    """(2, 3) world min and max of the placed leaf boxes of one prototype."""
-    c = leaves.centers
-    lo, hi = c.min(axis=0), c.max(axis=0)
-    box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    w = np.einsum("kij,lj->kli", placements[:, :3, :3], box) + placements[:, None, :3, 3]
-    return np.array([w.min(axis=(0, 1)), w.max(axis=(0, 1))])
-
-
 def _ratios(scene: Scene, placements: dict[int, np.ndarray], grid: GridSpec, sun_dir: np.ndarray, optics: LeafOptics,
             tolerance: float):
     """Per prototype, (N_i, 2C) stand over alone of u_s and the beam for the placements on ``grid``; and the stand's
@@ -262,25 +265,27 @@ def _calibration(scene: Scene, baked: list[int], voxel: float, sun_dir: np.ndarr
     factors: on the ``CALIBRATION_INSTANCES`` instances nearest the stand's centre, solved apart at that voxel and
     at ``CELLS_PER_CROWN``, the mean ratio of their factors."""
     t = np.stack([inst.transform[:3, 3] for inst in scene.instances])
-    near = set(np.argsort(np.linalg.norm(t - t.mean(axis=0), axis=1))[:CALIBRATION_INSTANCES].tolist())
-    window = {i: np.stack([inst.transform for k, inst in enumerate(scene.instances) if inst.prototype == i and k in near])
-              for i in baked if any(inst.prototype == i and k in near for k, inst in enumerate(scene.instances))}
-    crown = max(float(np.ptp(scene.prototypes[i].leaves.centers, axis=0).max()) for i in baked)
+    near: dict[int, list[np.ndarray]] = {}
+    for k in np.argsort(np.linalg.norm(t - t.mean(axis=0), axis=1))[:CALIBRATION_INSTANCES]:
+        inst = scene.instances[k]
+        if inst.prototype in baked:
+            near.setdefault(inst.prototype, []).append(inst.transform)
+    window = {i: np.stack(ms) for i, ms in near.items()}
     corners = np.concatenate([_leaf_box_corners(scene.prototypes[i].leaves, m) for i, m in window.items()])
     coarse, _, _ = _ratios(scene, window, _grid_over(corners, voxel), sun_dir, optics, tolerance)
-    fine, _, _ = _ratios(scene, window, _grid_over(corners, crown / CELLS_PER_CROWN), sun_dir, optics, tolerance)
+    fine, _, _ = _ratios(scene, window, _grid_over(corners, _crown(scene, baked) / CELLS_PER_CROWN), sun_dir, optics,
+                         tolerance)
     r = np.concatenate([coarse[i] / np.where(fine[i] > 0, fine[i], 1.0) for i in window])
     return r.mean(axis=0)
 
 
 def _forest_light(scene: Scene, sun: Sun, optics: LeafOptics, tolerance: float) -> ForestLight:
     t0 = time.perf_counter()
-    baked = [i for i, p in enumerate(scene.prototypes) if p.leaves.count and scene.instances_of(i)]
+    baked = _baked(scene)
     grid = stand_grid(scene)
     placements = {i: np.stack([inst.transform for inst in scene.instances_of(i)]) for i in baked}
     ratios, stand, lad = _ratios(scene, placements, grid, sun.direction, optics, tolerance)
-    crown = max(float(np.ptp(scene.prototypes[i].leaves.centers, axis=0).max()) for i in baked)
-    calibrate = crown / grid.voxel_size < 0.9 * CELLS_PER_CROWN and len(scene.instances) > CALIBRATION_INSTANCES
+    calibrate = _crown(scene, baked) / grid.voxel_size < 0.9 * CELLS_PER_CROWN and len(scene.instances) > CALIBRATION_INSTANCES
     bias = _calibration(scene, baked, grid.voxel_size, sun.direction, optics, tolerance) if calibrate else 1.0
     n, c = len(scene.instances), stand.shape[-1]
     factors, direct_factors = np.ones((n, c)), np.ones((n, c))
