@@ -238,7 +238,8 @@ def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, ray
                           f"{s['peak_memory_bytes'] / 1e9:.2f} GB")
             console.stdout.print(times)
             k = s["gather_rays_per_leaf"]
-            console.stdout.print(f"spp and lb include their final gather (--gather auto): {k} rays per leaf, "
+            who = "spp and lb include" if s["bases"] == "sun" else "spp includes"  # auto does not gather --bases all
+            console.stdout.print(f"{who} the final gather (--gather auto): {k} rays per leaf, "
                                  f"{s['gather_rays']:,} rays" if k else
                                  "--gather auto is off for this many leaves (spp and lb keep their volume method's light)",
                                  highlight=False)

@@ -217,13 +217,15 @@ def plan(path: Path, params: PlanParams) -> Report:
         placed_rays = len(scene.instances) * instance_samples(len(scene.instances))
         direct_rays += placed_rays
         total_s["direct"] += placed_rays / PLACED_DIRECT_RAYS_PER_S
-    # --gather auto (the default of spp and lb): once in each, over the leaves the shadow rays trace
-    gather_rays = traced_leaves * auto_rays(traced_leaves)
-    for stage in ("spp", "lb"):
+    # --gather auto (the default of spp and lb): once in each, over the leaves the shadow rays trace (lb's only
+    # for a sun bake: auto does not gather --bases all)
+    gather_per_leaf = auto_rays(traced_leaves)
+    gather_rays = traced_leaves * gather_per_leaf
+    for stage in ("spp", "lb") if params.bases == "sun" else ("spp",):
         total_s[stage] += gather_rays / GATHER_RAYS_PER_S
     report.stats = {
         "resolution": params.resolution, "bases": params.bases, "storage": params.storage, "depth": depth,
-        "gather_rays_per_leaf": auto_rays(traced_leaves), "gather_rays": int(gather_rays),
+        "gather_rays_per_leaf": gather_per_leaf, "gather_rays": int(gather_rays),
         "prototypes": protos, "instances": len(scene.instances), "leaves_total": int(leaves_total),
         "seconds_estimate": total_s, "peak_memory_bytes": peak, "direct_rays": int(direct_rays),
         "world_triangles": int(world_tris), "world_memory_bytes": world_bytes, "forest": forest,
