@@ -10,16 +10,15 @@ import numpy as np
 from foliage_tools.preview.optics import LeafOptics, SurfaceOptics
 from foliage_tools.preview.renderer import face_normals
 
-OPTICS = SurfaceOptics(
-    leaf=LeafOptics(
-        reflectance_front=(0.10, 0.20, 0.30),
-        reflectance_back=(0.05, 0.06, 0.07),
-        transmittance_front=(0.02, 0.03, 0.04),
-        transmittance_back=(0.11, 0.12, 0.13),
-        specular=0.0,
-    ),
-    ground_reflectance=(0.2, 0.3, 0.4),
+#: distinct values per face and channel, so a swapped face or channel cannot pass
+LEAF = LeafOptics(
+    reflectance_front=(0.10, 0.20, 0.30),
+    reflectance_back=(0.05, 0.06, 0.07),
+    transmittance_front=(0.02, 0.03, 0.04),
+    transmittance_back=(0.11, 0.12, 0.13),
+    specular=0.0,
 )
+OPTICS = SurfaceOptics(leaf=LEAF, ground_reflectance=(0.2, 0.3, 0.4))
 
 
 def uniform_ball(n: int, *, tau: float = 2.0, radius: float = 1.0, seed: int = 1):

@@ -48,8 +48,14 @@ def test_a_capped_grid_is_calibrated_to_the_fine_one(tmp_path, monkeypatch):
     raw, cal = coarse / fine, calibrated / fine
     # the precondition: the capped grid is off (measured +6 % at 8 cells on the 5 x 5 stand)
     assert abs(raw.mean() - 1) > 0.03, raw.mean()
-    # calibrated, it keeps only the spread of the bias over the stand (centre against edges): within 3 % on
-    # average and 5 % for every instance (measured at 6.2 / 8.2 / 10.3 cells: mean +0.6-0.8 %, worst 3.5-4.1 %,
-    # RMS 0.018-0.021 against the raw 0.062-0.087)
-    assert abs(cal.mean() - 1) < 0.03 and np.abs(cal - 1).max() < 0.05, (cal.mean(), np.abs(cal - 1).max())
+    # The calibration divides every factor by the bias of the 25 instances nearest the centre, of the 36 here: it
+    # removes the stand's mean bias up to how much the window's differs from the whole stand's (centre against
+    # edges), allowed up to 30 % of the bias itself; no instance ends farther off than the worst raw one, and
+    # the spread over instances falls with the mean. (Measured at 6.2 / 8.2 / 10.3 cells: mean +0.6-0.8 %
+    # against the raw +6.0-8.5 %, RMS 0.018-0.021 against 0.062-0.087.)
+    assert abs(cal.mean() - 1) < 0.3 * abs(raw.mean() - 1), (cal.mean(), raw.mean())
+    assert np.abs(cal - 1).max() < np.abs(raw - 1).max()
+    # and within 5 % for every instance: the uncapped lattice is within ~2.7 % of the reference per instance on
+    # the 5 x 5 stand (README), so every instance stays inside the 10 % of the reference
+    assert np.abs(cal - 1).max() < 0.05, np.abs(cal - 1).max()
     assert np.sqrt(np.mean((cal - 1) ** 2)) < 0.6 * np.sqrt(np.mean((raw - 1) ** 2))

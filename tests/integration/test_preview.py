@@ -26,21 +26,13 @@ from foliage_tools.preview.tonemap import luminance, measure_exposure, reinhard,
 from foliage_tools.scene.image import read_image, write_image
 from foliage_tools.scene.read import read_scene
 from tests.conftest import ASSETS, REPO, cards_mesh, sha256, write_mesh_stage
+from tests.helpers.crowns import LEAF
 
 GOLDEN = REPO / "tests" / "golden" / "preview"
 Z = np.array([0.0, 0.0, 1.0])
 NO_SKY = (0.0, 0.0, 0.0)
-# distinct per-channel values so a swapped face or channel cannot pass
-OPTICS = SurfaceOptics(
-    leaf=LeafOptics(
-        reflectance_front=(0.10, 0.20, 0.30),
-        reflectance_back=(0.05, 0.06, 0.07),
-        transmittance_front=(0.02, 0.03, 0.04),
-        transmittance_back=(0.11, 0.12, 0.13),
-        specular=0.0,
-    ),
-    ground_reflectance=(0.2, 0.2, 0.2),
-)
+# the helpers' leaf (distinct values per face and channel) over a grey ground (the goldens were drawn with it)
+OPTICS = SurfaceOptics(leaf=LEAF, ground_reflectance=(0.2, 0.2, 0.2))
 
 
 # -- scenes ------------------------------------------------------------------------------
