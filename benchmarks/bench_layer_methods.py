@@ -9,7 +9,8 @@ Usage (the README's layer table)::
 
 Arguments: the layer, --leaf-optics, --sun, and optionally the methods. An SPP
 method takes options after colons: ``sppg:radiance:g16`` is ``--g-weights
-radiance --g-resolution 16`` (``:paper``, ``:g0``: the defaults; ``:orders``: ``--g-orders``). The
+radiance --g-resolution 16`` (``:paper``: the default weights; ``:g0``: per-leaf depths; ``:orders`` / ``:once``: ``--g-orders`` /
+``--no-g-orders``; the exact slab's defaults are g16 and orders). The
 reference stops at 4 % per-leaf noise (a bin holds ~2000 leaves); bins are
 0.3 m of depth over the inner region |x|, |y| < 3.5 m, top to bottom.
 
@@ -76,8 +77,8 @@ def main(argv: list[str]) -> int:
             for opt in opts:  # sppg:radiance:g16 = --g-weights radiance --g-resolution 16
                 if opt in ("paper", "radiance"):
                     kw["g_weights"] = opt
-                elif opt == "orders":
-                    kw["g_orders"] = True
+                elif opt in ("orders", "once"):
+                    kw["g_orders"] = opt == "orders"
                 else:
                     kw["g_resolution"] = int(opt.removeprefix("g"))
             b = bake_spp(scene, sun, SppParams(optics=optics, sun=sun_t, model=model, **kw), [], Silent())[0].result

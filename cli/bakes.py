@@ -437,20 +437,22 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "is the share of the point's once-scattered light that is really there (lighting/gfactor.py derives "
                    "it). Measured: it hardly moves G in a uniform layer and lowers it on isolated crowns (tree_small "
                    "0.68 -> 0.59), which helps the exact slab only with bright leaves.")
-@click.option("--g-orders", "g_orders", is_flag=True,
-              help="Apply the G-factor once per order of scattering: G is a share of once-scattered light, and light "
+@click.option("--g-orders/--no-g-orders", "g_orders", default=None,
+              help="Apply the G-factor once per order of scattering (the default with --model exact; --no-g-orders: once, "
+                   "shinya2013 eq. 28, the default with --model spp): G is a share of once-scattered light, and light "
                    "scattered n times has left the real medium n times over, so the scattered light is scaled by "
                    "G s / (1 - G (1 - s)), s = the exact slab's once-scattered share at the leaf, instead of by G "
                    "(shinya2013 eq. 28). It matters for bright leaves (albedo near 1), where s is small; use it with "
                    "--g-resolution 16 (in shinya2013's own test, albedo 0.95, the exact slab + G on tree_small goes from "
                    "0.30 to 0.05 binned error, the oak 0.27 -> 0.14; README).")
-@click.option("--g-resolution", "g_resolution", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--g-resolution", "g_resolution", type=click.IntRange(min=0), default=None,
               help="Measure the G-factor's depths through a coarse leaf-area density grid of this many voxels along the "
                    "longest foliage edge (shinya2013 keeps G on a ~16^3 grid), not from each leaf's own depths. G is "
                    "lowered by mere depth noise (a leaf whose depth toward the sun reads long counts the slab as deeper "
                    "than its other directions see): in a uniform leaf layer 16 lifts G from 0.92 to 0.97 in the interior, "
                    "where the true loss through the sides is 2-8 %. On isolated crowns a higher G brightens the exact "
-                   "slab, which is already too bright there unless --g-orders. 0: per leaf.")
+                   "slab, which is already too bright there unless --g-orders. 0: per leaf. [default: 16 with --model exact, "
+                   "0 with --model spp]")
 @click.option("--depth", type=click.Choice(["auto", "rays", "grid"]), default="auto", show_default=True,
               help="How each leaf's optical depth toward the sun and the sample directions is measured (shinya2013 eq. 29). "
                    "grid: integrate the leaf-area density grid (own leaf's area taken out), assuming randomly oriented leaves. "
@@ -468,7 +470,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
 @direct_options
 @bake_options
 @common_options
-def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, model: str | None, g_weights: str, g_orders: bool, g_resolution: int, depth: str,
+def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, model: str | None, g_weights: str, g_orders: bool | None, g_resolution: int | None, depth: str,
         rays_per_leaf: int, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
         as_json: bool, quiet: bool, verbose: int) -> None:
     """Simplified plane-parallel scattering with the G-factor (shinya2013).

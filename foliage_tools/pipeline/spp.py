@@ -79,6 +79,11 @@ DEPTH_PATHS = ("auto", "grid", "rays")
 #: integrates the grid above: rays cost 0.5-1 ms per leaf and instance at the defaults (bench_sppg.py: 50k leaves
 #: 25-56 s on two 2-core hosts; 500k would be 4-10 min against 4-7 s for the grid).
 AUTO_RAYS_MAX_LEAVES = 50_000
+#: ``--g-resolution`` of the exact slab (shinya2013 sec. 5.1-5.2 keeps G on a ~16³ grid). With ``--g-orders`` it
+#: measured better than G per leaf, once, on all three test crowns at their optics (per-leaf E_scattered 0.353 /
+#: 0.406 / 0.432 against 0.381 / 0.410 / 0.460) and in shinya2013's own setting (binned total 0.045 / 0.136 against
+#: 0.296 / 0.267 on tree_small / the oak), and the same within 1 % in the uniform layer (README, issue #15).
+G_RESOLUTION = 16
 
 
 @dataclass(frozen=True)
@@ -101,13 +106,16 @@ class SppParams:
     g_weights: str = gf.SPPGParams.g_weights
     """``--g-weights``: how G combines its sample directions (lighting.gfactor): ``paper`` (shinya2013 eq. 27, the
     equal-weight mean) or ``radiance`` (weighted by the plane-parallel single-scattering radiance from each)."""
-    g_orders: bool = False
+    g_orders: bool | None = None
     """``--g-orders``: G once per order of scattering, G s / (1 - G (1 - s)) with s the exact slab's once-scattered
-    share (lighting.gfactor); False: G once (shinya2013 eq. 28). The sppGFactor grid stays G."""
-    g_resolution: int = 0
+    share (lighting.gfactor); False: G once (shinya2013 eq. 28). The sppGFactor grid stays G. None: True with the
+    exact slab, False with the paper's closed form (which already loses half the scattered light: per order it
+    measured worse, README)."""
+    g_resolution: int | None = None
     """``--g-resolution``: voxels along the longest foliage edge of a coarse leaf-area density grid through which
     the depths of the G-factor alone are measured (shinya2013 sec. 5.1-5.2 keeps G on a ~16³ grid); 0: G from
-    each leaf's own depths, the same as the plane-parallel part (lighting.gfactor, "Depth noise")."""
+    each leaf's own depths, the same as the plane-parallel part (lighting.gfactor, "Depth noise"). None:
+    ``G_RESOLUTION`` with the exact slab, 0 with the paper's closed form (its measured rows)."""
     depth: str = "auto"
     """``rays``: count leaf crossings; ``grid``: integrate the leaf-area density, own leaf removed (module docstring);
     ``auto``: ``grid`` when the direct light comes from shadow rays (``--direct rays``, the default), else rays up to
@@ -144,6 +152,11 @@ class SppParams:
         check_gather(self.gather)
         if self.model is not None and self.model not in gf.MODELS:
             raise UsageError(f"--model must be one of {', '.join(gf.MODELS)}, got {self.model!r}.")
+        exact = (self.model or ("spp" if self.refine else "exact")) == "exact"
+        if self.g_orders is None:
+            object.__setattr__(self, "g_orders", exact)
+        if self.g_resolution is None:
+            object.__setattr__(self, "g_resolution", G_RESOLUTION if exact else 0)
         if self.g_resolution != 0 and not (4 <= self.g_resolution <= 512):
             raise UsageError(f"--g-resolution must be 0 (per leaf) or between 4 and 512, got {self.g_resolution}.")
         if self.g_weights not in gf.G_WEIGHTS:

@@ -71,12 +71,13 @@ def test_g_factor_options_are_flags_recorded_in_the_report_and_bad_values_are_us
     """--g-weights, --g-resolution and --g-orders reach the bake (the report says which ran, and they change G) or
     exit 2."""
     runs = {}
-    for args in ((), ("--g-weights", "radiance"), ("--g-resolution", "8"), ("--g-orders",)):
+    for args in ((), ("--g-weights", "radiance"), ("--g-resolution", "8"), ("--no-g-orders",)):
         r = foliage("spp", EXAMPLE, "-o", tmp_path / "o.usda", "--resolution", "16", "--json", *args)
         assert r.returncode == 0, r.stderr
         runs[args] = json.loads(r.stdout)["stats"]
-    assert (runs[()]["g_weights"], runs[()]["g_resolution"], runs[()]["g_orders"]) == ("paper", 0, False)
-    assert runs[("--g-orders",)]["g_orders"] is True
+    # the exact slab's defaults (pipeline.spp.G_RESOLUTION, G per order)
+    assert (runs[()]["g_weights"], runs[()]["g_resolution"], runs[()]["g_orders"]) == ("paper", 16, True)
+    assert runs[("--no-g-orders",)]["g_orders"] is False
     assert runs[("--g-weights", "radiance")]["g_weights"] == "radiance"
     assert runs[("--g-resolution", "8")]["g_resolution"] == 8
     means = {k: v["prototypes"][0]["gfactor_mean"] for k, v in runs.items()}

@@ -20,7 +20,7 @@ from foliage_tools.pipeline.report import Report
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 SUN = {"azimuth": 45.0, "elevation": 60.0, "source": "</Lights/Sun>"}
-NAMES = ("lb-64-lattice1", "sppg-paper-radiance", "sppg-g16-orders", "smax-paper")
+NAMES = ("lb-64-lattice1", "sppg-paper-radiance", "sppg-once", "smax-paper")
 HEADINGS = ("rel. RMS E_scattered", "rel. RMS total", "total, own direct", "binned E_scattered (eq. 30)",
             "binned total (eq. 30)")
 

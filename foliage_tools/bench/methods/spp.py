@@ -1,7 +1,7 @@
 """shinya2013's SPP, SPPG and single-scattering (SS) baseline as bench methods.
 
 ``spp`` / ``sppg``: the default plane-parallel model, the exact slab solution per leaf (``--model exact``), without and
-with the G-factor; ``spp-paper`` / ``sppg-paper``: the paper's closed form (``--model spp``), which loses about half
+with the G-factor (G from a 16-voxel grid, once per order of scattering: ``foliage spp``'s defaults); ``spp-paper`` / ``sppg-paper``: the paper's closed form (``--model spp``), which loses about half
 the scattered light of a high sun even where the canopy is exactly plane-parallel (lighting/spp.py). One bake serves
 a model's three rows; each row is timed with its own bake.
 """
@@ -34,5 +34,5 @@ register("sppg-paper", "shinya2013's SPP closed form with the G-factor (the pape
 register("sppg-radiance", "exact plane-parallel slab per leaf with the radiance-weighted G-factor (--g-weights radiance)")(
     _runner("sppg", "exact", "radiance"))
 register("sppg-paper-radiance", "shinya2013's SPP closed form with the radiance-weighted G-factor")(_runner("sppg", "spp", "radiance"))
-register("sppg-g16-orders", "exact slab with G from a 16-voxel grid, once per order of scattering (--g-resolution 16 --g-orders)")(
-    _runner("sppg", "exact", g_resolution=16, g_orders=True))
+register("sppg-once", "exact slab with G per leaf, applied once (--g-resolution 0 --no-g-orders: sppg before issue #15's change)")(
+    _runner("sppg", "exact", g_resolution=0, g_orders=False))
