@@ -36,6 +36,9 @@ def grid_class(name: str) -> str:
     return "fog volume" if name in FOG_GRIDS else "unknown"
 
 
+#: The largest finite IEEE binary16 value (what ``Grid.half`` can store); above it OpenVDB writes infinity.
+HALF_MAX = 65504.0
+
 _GRID_CLASSES = {"fog volume": _vdb.GridClass.FOG_VOLUME, "unknown": _vdb.GridClass.UNKNOWN}
 
 
@@ -50,6 +53,9 @@ class Grid:
     """World position of the min corner of voxel (0, 0, 0), stage units."""
     voxel_size: float
     metadata: dict = field(default_factory=dict)
+    half: bool = False
+    """Stored on disk as IEEE binary16 (OpenVDB's ``saveFloatAsHalf``: its own quantisation, which every OpenVDB
+    reader expands back to float32); in memory, and read back, the values are float32 either way."""
 
     @property
     def data_type(self) -> str:
@@ -67,6 +73,9 @@ def to_vdb(grid: Grid):
     values = np.ascontiguousarray(grid.values, dtype=np.float32)
     if not np.all(np.isfinite(values)):
         raise ValueError(f"grid {grid.name!r} holds NaN or infinite values; refusing to write it")
+    if grid.half and values.size and float(np.abs(values).max()) > HALF_MAX:
+        raise ValueError(f"grid {grid.name!r} holds values beyond {HALF_MAX:g}, the largest half float: they would be "
+                         "stored as infinite; write it as float")
     if values.ndim == 4:
         g = _vdb.Vec3SGrid()
         g.copyFromArray(values, ijk=(0, 0, 0), tolerance=(0.0, 0.0, 0.0))
@@ -78,6 +87,8 @@ def to_vdb(grid: Grid):
     g.gridClass = _GRID_CLASSES[grid_class(grid.name)]
     for key, value in grid.metadata.items():
         g[key] = value
+    if grid.half:  # only then: even False adds is_saved_as_half_float to the metadata, and float files stay as they were
+        g.saveFloatAsHalf = True
     return g
 
 
@@ -87,7 +98,9 @@ def write_vdb(path: Path, grids: list[Grid], *, metadata: dict | None = None, ca
     ``carried``: (file, grid name) of grids an earlier stage wrote, copied as they
     are (sparse tree, transform, metadata) into this file after ``grids``, so one
     file holds every field of a volume (DCCs such as Blender read one file per
-    volume). Their grid class is set by name like the new grids'.
+    volume). Their grid class is set by name like the new grids'. They keep the
+    precision their stage wrote them in (OpenVDB reads ``saveFloatAsHalf`` back
+    with the grid): the stage that made a grid decides how it is stored.
     """
     written = [to_vdb(g) for g in grids]
     for source, name in carried:
@@ -165,4 +178,5 @@ def read_grid(path: Path, name: str) -> Grid:
     h = float(np.linalg.norm(w1 - w0))
     origin = tuple(float(x) for x in (w0 - 0.5 * h))
     meta = {k: v for k, v in g.metadata.items() if not k.startswith("file_")}
-    return Grid(name=name, values=arr, origin=origin, voxel_size=h, metadata=meta)
+    half = bool(meta.pop("is_saved_as_half_float", False))  # OpenVDB's own key for saveFloatAsHalf: Grid.half
+    return Grid(name=name, values=arr, origin=origin, voxel_size=h, metadata=meta, half=half)
