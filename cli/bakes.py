@@ -12,7 +12,7 @@ from foliage_tools.cli import console
 from foliage_tools.cli.common import (
     OUT, SCENE, parse_direct_samples, bake_options, common_options, direct_choice, direct_options, execute, gather_option,
     leaf_optics_from_flags, run,
-    setup_logging, volume_purpose_option,
+    grid_precision_option, setup_logging, volume_purpose_option,
 )
 
 
@@ -271,14 +271,15 @@ def bench_table(scene: Path, s: dict) -> Table:
 @click.option("--storage", type=click.Choice(["fp32", "fp16"]), default="fp32", show_default=True,
               help="How the solver stores the lattice densities between sweeps: fp32, or fp16 (binary16 with float32 "
                    "arithmetic: half the memory, ~1.5x faster with --bases all; not with --solver bicgstab). The grids "
-                   "written are float32 either way; README 'LB storage' gives the measured error.")
+                   "written are as --grid-precision says either way; README 'LB storage' gives the measured error.")
+@grid_precision_option
 @gather_option("LB's scattered light", "primvars:foliage:lb:scattered and lbIndirect (then per leaf)")
 @volume_purpose_option
 @direct_options
 @bake_options
 @common_options
 def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, solver: str, absorption_scale: float, max_sweeps: int,
-       storage: str, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+       storage: str, grid_precision: str, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
        as_json: bool, quiet: bool, verbose: int) -> None:
     """Lattice-Boltzmann light bake (geist2008, steele2010) per unique prototype.
 
@@ -306,8 +307,8 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, bases=bases, tolerance=tolerance, solver=solver, absorption_scale=absorption_scale,
-            max_sweeps=max_sweeps, storage=storage, direct=direct_choice(direct_mode, direct_samples), gather=gather,
-            volume_purpose=volume_purpose,
+            max_sweeps=max_sweeps, storage=storage, grid_precision=grid_precision,
+            direct=direct_choice(direct_mode, direct_samples), gather=gather, volume_purpose=volume_purpose,
         )
 
         def render(report) -> None:
@@ -338,6 +339,7 @@ def bake_job_options(fn):
                           "bakes) or auto: usdc from 100 000 prototype leaves or 10 000 instances on, else usda."),
         gather_option("the volume method's (SPP's in the spp stage, LB's in the lb stage)",
                       "primvars:foliage:sppg:scattered and :lb:scattered"),
+        grid_precision_option,
         volume_purpose_option,
         direct_options,
         bake_options,
@@ -349,7 +351,7 @@ def bake_job_options(fn):
 def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float, direct_mode: str,
                 direct_samples: int | None, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
                 volume_purpose: str = "default", portable: bool = False, layer_format: str = "auto",
-                gather: int | None = None):
+                gather: int | None = None, grid_precision: str = "float"):
     """The ``BakeParams`` of the bake options' values."""
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.bake import BakeParams
@@ -359,7 +361,7 @@ def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, 
         sun=parse_sun(sun) if sun is not None else None,
         resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
         reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples), portable=portable,
-        volume_purpose=volume_purpose, layer_format=layer_format, gather=gather,
+        volume_purpose=volume_purpose, layer_format=layer_format, gather=gather, grid_precision=grid_precision,
     )
 
 
@@ -373,7 +375,7 @@ def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, 
                    "layer sublayers the input by a relative path, and OUTDIR moves only together with the input.")
 @common_options
 def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float,
-         portable: bool, layer_format: str, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+         portable: bool, layer_format: str, gather: int | None, grid_precision: str, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
          as_json: bool, quiet: bool, verbose: int) -> None:
     """The main job: density, s_max, SPP and LB bakes, a preview (and a speed-vs-error report) into OUTDIR.
 
@@ -392,7 +394,8 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
         params = bake_params(resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
                              reference_noise=reference_noise, direct_mode=direct_mode, direct_samples=direct_samples,
                              sun=sun, leaf_optics=leaf_optics, wood_reflectance=wood_reflectance,
-                             volume_purpose=volume_purpose, portable=portable, layer_format=layer_format, gather=gather)
+                             volume_purpose=volume_purpose, portable=portable, layer_format=layer_format, gather=gather,
+                             grid_precision=grid_precision)
 
         def render(report) -> None:
             d = report.stats.get("direct") or {}

@@ -18,7 +18,8 @@ from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED, FoliageError, 
 #: The bake options an asset of a manifest may set (every option of `foliage bake` but its output and output format).
 _NOT_PER_ASSET = {"outdir", "as_json", "quiet", "verbose"}
 _BAKE_PARAMS = ("resolution", "with_reference", "reference_paths", "reference_noise", "direct_mode", "direct_samples",
-                "sun", "leaf_optics", "wood_reflectance", "volume_purpose", "layer_format", "gather")
+                "sun", "leaf_optics", "wood_reflectance", "volume_purpose", "layer_format", "gather",
+                "grid_precision")
 
 
 class _Bar:

@@ -235,6 +235,16 @@ def direct_options(fn: Callable) -> Callable:
     return fn
 
 
+def grid_precision_option(fn: Callable) -> Callable:
+    """``--grid-precision`` (lb, bake): how the LB grids are stored on disk (``LBBakeParams.grid_precision``)."""
+    return click.option(
+        "--grid-precision", type=click.Choice(["float", "half"]), default="float", show_default=True,
+        help="How the LB grids (lbSun, or lbAmbient and lbBase01..18) are stored in the .vdb: float (float32), or half "
+             "(OpenVDB's saveFloatAsHalf: half the file, each value within 2^-11 relative; read back as float32). "
+             "The density and the other stages' grids stay as they were written; README 'LB storage' gives the error.",
+    )(fn)
+
+
 def volume_purpose_option(fn: Callable) -> Callable:
     """``--volume-purpose`` (density, spp, lb, bake): the purpose of the FoliageLighting volume written."""
     return click.option(

@@ -9,6 +9,9 @@ from foliage_tools.errors import UsageError
 
 DENSITY_METHODS = ("area", "subgrid")
 DEFAULT_RESOLUTION = 64
+#: How ``foliage lb`` stores its grids on disk (``--grid-precision``, of lb and bake): ``float`` (float32) or
+#: ``half`` (OpenVDB's saveFloatAsHalf, ``scene.vdb.Grid.half``: half the file, each value within 2^-11; README "LB storage").
+GRID_PRECISIONS = ("float", "half")
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from pathlib import Path
 from foliage_tools.errors import FoliageError, OutputError, UsageError
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline import bake_warnings
-from foliage_tools.params import DensityParams
+from foliage_tools.params import GRID_PRECISIONS, DensityParams
 from foliage_tools.pipeline.direct import DirectChoice
 from foliage_tools.pipeline.gather import check_gather
 from foliage_tools.pipeline.report import Progress, Report, Silent
@@ -51,6 +51,8 @@ class BakeParams:
     """``--volume-purpose`` of the FoliageLighting volumes every stage writes."""
     gather: int | None = None
     """``--gather`` of the spp and lb stages (rays per leaf of the final gather; 0: off; None: auto)."""
+    grid_precision: str = "float"
+    """``--grid-precision`` of the lb stage: its grids on disk as ``float`` or ``half`` (``LBBakeParams.grid_precision``)."""
     portable: bool = False
     """Bake a flattened copy of the input written into OUTDIR (``scene.portable``), so the folder can move on its own."""
     layer_format: str = "auto"
@@ -59,6 +61,8 @@ class BakeParams:
 
     def __post_init__(self) -> None:
         check_gather(self.gather)
+        if self.grid_precision not in GRID_PRECISIONS:
+            raise UsageError(f"--grid-precision must be one of {', '.join(GRID_PRECISIONS)}, got {self.grid_precision!r}.")
         if self.layer_format not in LAYER_FORMATS:
             raise UsageError(f"--layer-format must be one of {', '.join(LAYER_FORMATS)}, got {self.layer_format!r}.")
 
@@ -194,7 +198,8 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
     stages["spp"] = _stage("spp", run_spp, smax_out, spp_out, SppParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose, gather=params.gather), progress=progress)
     lb_out = work / f"{stem}.lb.{ext}"
     stages["lb"] = _stage(
-        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose, gather=params.gather),
+        "lb", run_lb, spp_out, lb_out, LBBakeParams(optics=params.optics, sun=params.sun, resolution=params.resolution, direct=params.direct, volume_purpose=params.volume_purpose, gather=params.gather,
+                                             grid_precision=params.grid_precision),
         progress=progress,
     )
     # a picture of the bake: direct light beside direct + each method's indirect, same exposure; per-leaf

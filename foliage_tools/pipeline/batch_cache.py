@@ -61,6 +61,7 @@ def options_json(params: BakeParams) -> dict:
         "direct": {"mode": d.mode, "samples": d.samples, "seed": d.seed},
         # they change what is written too (the per-leaf scattered light; the volumes' purpose; the layers' files)
         "gather": params.gather, "volume_purpose": params.volume_purpose, "layer_format": params.layer_format,
+        "grid_precision": params.grid_precision,  # the lb grids' precision on disk
     }
 
 

@@ -46,7 +46,7 @@ from foliage_tools.lighting import lb, single_scatter
 from foliage_tools.lighting.collision import LATTICES, PHASES, Medium, brown, density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.lighting.storage import STORAGES
-from foliage_tools.params import DensityParams
+from foliage_tools.params import GRID_PRECISIONS, DensityParams
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path
 from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
@@ -92,7 +92,11 @@ class LBBakeParams:
     """Sweeps after which the solver stops short of ``tolerance`` (the bake then fails its accuracy check: exit 1)."""
     storage: str = "fp32"
     """``--storage``: the lattice densities stored in ``fp32`` or ``fp16`` (scaled binary16 with float32 arithmetic,
-    ``lighting.storage``: half the solver's memory). The grids written are float32 either way."""
+    ``lighting.storage``: half the solver's memory). The grids written are as ``grid_precision`` says either way."""
+    grid_precision: str = "float"
+    """``--grid-precision``: the LB grids (lbSun, or lbAmbient and lbBase01..18) on disk as ``float`` (float32) or
+    ``half`` (binary16 through OpenVDB's saveFloatAsHalf: half the file, each value within 2^-11 relative; read back
+    as float32). Only the disk copy: the per-leaf primvars are computed from the float32 fields either way."""
     direct: DirectChoice = DirectChoice()
     """``--direct``: what ``primvars:foliage:lb:direct`` holds (exact shadow rays by default, or the lattice's own)."""
     lattice: str = "ordinates"
@@ -138,6 +142,8 @@ class LBBakeParams:
             raise UsageError(f"--solver must be one of {', '.join(lb.SOLVERS)}, got {self.solver!r}.")
         if self.storage not in STORAGES:
             raise UsageError(f"--storage must be one of {', '.join(STORAGES)}, got {self.storage!r}.")
+        if self.grid_precision not in GRID_PRECISIONS:
+            raise UsageError(f"--grid-precision must be one of {', '.join(GRID_PRECISIONS)}, got {self.grid_precision!r}.")
         if self.storage == "fp16" and self.solver == "bicgstab":
             raise UsageError("--storage fp16 cannot be combined with --solver bicgstab (its Krylov vectors need more than "
                              "16 bits); use --solver auto, iterate or extrapolate, or --storage fp32.")
@@ -305,11 +311,13 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         e_scattered = gathered.per_prototype[bake.index] if gathered else bake.e_scattered
         g = bake.grid
         meta = {"units": "photon energy density (sun irradiance 1 = 1)", "metersPerUnit": float(scene.meters_per_unit)}
+        half = params.grid_precision == "half"  # the LB grids only: the density and earlier grids carried keep theirs
         if params.bases == "sun":
-            grids = [Grid("lbSun", bake.sun_total.astype(np.float32), tuple(g.origin), g.voxel_size, meta)]
+            grids = [Grid("lbSun", bake.sun_total.astype(np.float32), tuple(g.origin), g.voxel_size, meta, half=half)]
         else:
-            grids = [Grid("lbAmbient", bake.total[..., 0, :].astype(np.float32), tuple(g.origin), g.voxel_size, meta)]
-            grids += [Grid(f"lbBase{k:02d}", bake.total[..., k, :].astype(np.float32), tuple(g.origin), g.voxel_size, meta) for k in range(1, 19)]
+            grids = [Grid("lbAmbient", bake.total[..., 0, :].astype(np.float32), tuple(g.origin), g.voxel_size, meta, half=half)]
+            grids += [Grid(f"lbBase{k:02d}", bake.total[..., k, :].astype(np.float32), tuple(g.origin), g.voxel_size, meta, half=half)
+                      for k in range(1, 19)]
         r = bake.result
         attrs = {
             "foliage:method": "lb",
@@ -326,6 +334,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "foliage:lb:sigmaS": tuple(float(v) for v in bake.medium.sigma_s),
             "foliage:lb:g": tuple(float(v) for v in bake.medium.g),
             "foliage:lb:absorptionScale": float(params.absorption_scale),
+            "foliage:lb:gridPrecision": params.grid_precision,
             "foliage:gatherRays": int(rays),
         }
         vol = volume_path(scene, proto)
@@ -350,6 +359,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
             "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source, "storage": params.storage,
+            "grid_precision": params.grid_precision,
             "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": e_scattered.mean(axis=0).tolist(),
             "e_scattered_lattice_mean": bake.e_scattered.mean(axis=0).tolist(),
             "e_direct_volume_mean": bake.e_direct.mean(axis=0).tolist(),
@@ -375,6 +385,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
     report.stats = {
         "solver": first["solver"], "iterations": first["iterations"], "residual": first["residual"],
         "resolution": first["resolution"], "bases": params.bases, "mlups": first["mlups"], "storage": params.storage,
+        "grid_precision": params.grid_precision,
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "absorption_scale": params.absorption_scale, "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
