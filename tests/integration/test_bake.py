@@ -166,3 +166,21 @@ def test_progress_reaches_a_log_without_a_terminal(tmp_path, monkeypatch):
     p.step("tracing", total=4)
     p.advance(2)
     assert seen == ["tracing", "tracing: 50 % (2/4)"]
+
+
+def test_bake_grid_precision_half_stores_the_lb_grids_half_and_keeps_the_density_float(tmp_path):
+    """``bake --grid-precision half`` reaches the lb stage: its lbSun is half (scene.vdb.Grid.half), the density
+    carried into the same .vdb stays the float32 its stage wrote (later stages read it), and the batch key differs."""
+    from foliage_tools.pipeline.batch_cache import asset_key
+    from foliage_tools.scene.vdb import read_grid
+
+    r = foliage("bake", EXAMPLE, "-o", tmp_path / "out", "--resolution", "8", "--direct-samples", "16", "--gather", "0",
+                "--grid-precision", "half")
+    assert r.returncode == 0, r.stderr
+    lb_vdb = tmp_path / "out" / "tree_small.lb.vdb"
+    assert read_grid(lb_vdb, "lbSun").half and not read_grid(lb_vdb, "density").half
+    assert foliage("validate", tmp_path / "out" / "tree_small.lb.usda").returncode == 0
+    keys = {p: asset_key(EXAMPLE, BakeParams(optics=parse_leaf_optics(None), grid_precision=p)).digest for p in ("float", "half")}
+    assert keys["float"] != keys["half"]
+    with pytest.raises(Exception, match="--grid-precision must be one of"):
+        BakeParams(optics=parse_leaf_optics(None), grid_precision="double")

@@ -82,6 +82,34 @@ def test_storage_fp16_writes_float32_grids_and_says_so(tmp_path):
     assert bad.returncode == 2 and "--storage fp16 cannot be combined with --solver bicgstab" in bad.stderr
 
 
+def test_grid_precision_half_writes_the_float_run_s_grids_within_half_precision(tmp_path):
+    """``--grid-precision half`` (issue #21, scene.vdb.Grid.half): the same lbSun as a float run, each value rounded
+    once to binary16 (11-bit significand: within 2^-11 relative, 2^-25 absolute among the subnormals, as
+    tests/unit/test_vdb_half.py), in a smaller file; the choice is recorded, and the layer validates."""
+    import json
+
+    from pxr import Usd
+
+    runs = {}
+    for precision in ("float", "half"):
+        out = tmp_path / f"{precision}.lb.usda"
+        r = foliage("lb", EXAMPLE, "--resolution", "16", "--gather", "0", "--grid-precision", precision, "-o", out, "--json")
+        assert r.returncode == 0, r.stderr
+        stats = json.loads(r.stdout)["stats"]
+        assert stats["grid_precision"] == precision == stats["prototypes"][0]["grid_precision"]
+        stage = Usd.Stage.Open(str(out))
+        assert stage.GetPrimAtPath("/Tree/FoliageLighting").GetAttribute("foliage:lb:gridPrecision").Get() == precision
+        runs[precision] = (out.with_suffix(".vdb"), read_grid(out.with_suffix(".vdb"), "lbSun"))
+    (f_file, f), (h_file, h) = runs["float"], runs["half"]
+    assert not f.half and h.half and h.values.dtype == np.float32
+    assert np.all(np.abs(h.values - f.values) <= np.maximum(2.0**-11 * np.abs(f.values), 2.0**-25))
+    assert h_file.stat().st_size < f_file.stat().st_size
+    assert foliage("validate", h_file.with_suffix(".usda")).returncode == 0
+    assert LBBakeParams(optics=parse_leaf_optics(None)).grid_precision == "float"
+    with pytest.raises(Exception, match="--grid-precision"):
+        LBBakeParams(optics=parse_leaf_optics(None), grid_precision="fp16")
+
+
 def test_bad_lb_options_are_usage_errors(tmp_path):
     r = foliage("lb", EXAMPLE, "-o", tmp_path / "o.usda", "--tolerance", "2")
     assert r.returncode == 2 and "--tolerance" in r.stderr
