@@ -47,7 +47,7 @@ test-slow: setup
 	$(PY) -m pytest -m slow -q
 
 # Speed studies (not tests): each script prints its own table. Run one with
-# `make bench BENCH=density` (density, lb, lb_issue, lb_storage, smax, reference, reference_noise, direct, preview, spp_tables, sppg, forest, batch).
+# `make bench BENCH=density` (density, lb, lb_issue, lb_storage, lb_grid_precision, smax, reference, reference_noise, direct, preview, spp_tables, sppg, forest, batch).
 BENCH ?= density lb lb_issue lb_storage smax reference reference_noise direct preview spp_tables sppg forest batch
 bench: setup
 	@for b in $(BENCH); do \
