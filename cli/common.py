@@ -139,9 +139,36 @@ def _json_error(started: float, code: int, kind: str, message: str, **extra) -> 
         pass
 
 
+#: The loggers ``-v`` / ``-vv`` open: the tool's own (``foliage`` for the CLI's steps, ``foliage_tools.*`` for the
+#: stages and solvers). Libraries' loggers (numba, distributed, ...) are left as they are: ``-vv`` must not flood
+#: stderr with numba's compiler trace.
+OWN_LOGGERS = ("foliage", "foliage_tools")
+
+
+class _StderrHandler(logging.StreamHandler):
+    """Writes to the ``sys.stderr`` of the moment (a test runner swaps it between invocations)."""
+
+    @property  # type: ignore[override]
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value) -> None:
+        pass
+
+
 def setup_logging(verbose: int, quiet: bool) -> None:
+    """``-q`` errors only, default warnings, ``-v`` info (steps, solver choices, timings), ``-vv`` debug; on stderr,
+    so ``--json`` stdout stays one JSON object."""
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    for name in OWN_LOGGERS:
+        logger = logging.getLogger(name)
+        logger.handlers = [h for h in logger.handlers if not isinstance(h, _StderrHandler)]
+        handler = _StderrHandler()
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        logger.addHandler(handler)
+        logger.setLevel(level)
+        logger.propagate = False
 
 
 def _long_names(command: click.Command) -> dict[str, str]:
@@ -276,6 +303,14 @@ def _auto_or_whole(value, ctx: click.Context, param: click.Parameter) -> int | N
         return int(str(value).strip())
     except ValueError:
         raise click.BadParameter(f"{value!r} is neither 'auto' nor a whole number.", ctx=ctx, param=param) from None
+
+
+def parse_depth_resolution(ctx: click.Context, param: click.Parameter, value) -> int | None:
+    """``--depth-resolution auto|N`` (spp): None for auto, else N voxels (4-512)."""
+    n = _auto_or_whole(value, ctx, param)
+    if n is not None and not (4 <= n <= 512):
+        raise click.BadParameter(f"{n} voxels: use auto or a resolution between 4 and 512.", ctx=ctx, param=param)
+    return n
 
 
 def parse_gather(ctx: click.Context, param: click.Parameter, value) -> int | None:

@@ -196,6 +196,7 @@ BiCGSTAB. Tighten the tolerance (float64 for < 1e-7) when the error matters.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -215,6 +216,8 @@ from foliage_tools.lighting.collision import (
 from foliage_tools.lighting.depth import _march
 from foliage_tools.lighting.lattice import DIRECTIONS, OPPOSITE, STEP_LENGTHS, UNIT_DIRECTIONS, barycentric_weights
 from foliage_tools.lighting.storage import STORAGES, convert, from_storage, load, storage_dtype, to_storage
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "Boundary",
@@ -1802,6 +1805,8 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
     krylov = params.solver == "bicgstab"
     if switched:  # auto, and plain iteration is slow
         krylov = 6 * op.field_bytes <= params.memory_limit and params.storage == "fp32"
+        log.info("lb solve: plain sweeps converge slowly after %d (residual %.2e); switching to %s", sweeps,
+                 float(res.max()), "BiCGSTAB" if krylov else "extrapolated sweeps (BiCGSTAB would not fit or needs fp32)")
         if not krylov:
             f, n, res, _ = _iterate(
                 op, f, tol, params.max_sweeps - sweeps, params.check_every, history, None, extrapolate=True, warmup=0
@@ -1828,6 +1833,8 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:
             sweeps += n
             used.append("iterate")
     loop_seconds = time.perf_counter() - t_loop
+    log.debug("lb solve: %s nodes x %d rhs, %s, %d sweeps, residual %.2e (tolerance %.1e), %.2f s", f"{op.nodes:,}", nrhs,
+              "+".join(used), sweeps, float(res.max()), tol, loop_seconds)
     if not np.all(np.isfinite(res)):
         raise LBNumericalError(f"the lattice solve ended with a non-finite residual (solver {'+'.join(used)}); "
                                "use the solver 'iterate', and please report the input.")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import re
 import time
 from dataclasses import dataclass
@@ -20,6 +21,8 @@ from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.vdb import Grid
 from foliage_tools.pipeline.volumes import bakes_root, class_path, prototype_volume, volume_path
 from foliage_tools.scene.write import LayerEdits, PrimvarEdit, check_output_path, stage_metadata, write_layer
+
+log = logging.getLogger(__name__)
 
 
 #: Largest grid a density bake will allocate (float64 work arrays: 8 bytes × 3 per voxel).
@@ -236,6 +239,8 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
                 f"holds {100 * (1 - (rel_err or 1.0)):.1f} % of the leaf area, {np.count_nonzero(res.density)} voxel(s) "
                 f"non-zero, for foliage {size:g} across: the voxels are too large (or too small) for float32 densities. "
                 "Use --resolution N, or a --voxel-size near the foliage size over 64.")
+        log.info("density <%s>: %s grid, voxel %.4g, %d active voxels, %.2f s", proto.path, "x".join(map(str, res.grid.shape)),
+                 res.grid.voxel_size, int(np.count_nonzero(res.density)), res.seconds)
         protos.append(
             {
                 "path": proto.path,

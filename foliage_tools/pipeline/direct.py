@@ -16,6 +16,7 @@ through every placed instance (:func:`instance_direct`, nothing copied).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +27,8 @@ from foliage_tools.lighting import direct
 from foliage_tools.pipeline.report import Progress
 from foliage_tools.pipeline.world import World, bake_world, prototype_means, traced_parts
 from foliage_tools.scene.model import Scene
+
+log = logging.getLogger(__name__)
 
 #: ``--direct`` choices: shadow rays through the geometry, or the method's own volume estimate.
 DIRECT_MODES = ("rays", "volume")
@@ -131,6 +134,7 @@ def bake_direct(scene: Scene, sun: Sun, choice: DirectChoice, progress: Progress
                                   direct.DirectParams(samples_per_leaf=samples, seed=choice.seed),
                                   progress=lambda d, _t, base=base: advance(base + d, n)))
     res = parts[0] if len(parts) == 1 else _joined(parts)  # (a lone world has leaves: bake_world)
+    log.info("direct: %d shadow rays per leaf over %s leaves, %.2f s", samples, f"{n:,}", res.seconds)
     counts = [p.leaves.count for p in scene.prototypes]
     per_leaf = np.repeat(res.e_direct[:, None], 3, axis=1)
     instances = instance_direct(scene, sun, progress, seed=choice.seed) if world.lone else None

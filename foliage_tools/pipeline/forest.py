@@ -41,6 +41,7 @@ divided out (``_calibration``).
 
 from __future__ import annotations
 
+import logging
 import hashlib
 import time
 from dataclasses import dataclass
@@ -56,6 +57,8 @@ from foliage_tools.lighting.collision import density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.report import Progress, Silent
 from foliage_tools.scene.model import Scene
+
+log = logging.getLogger(__name__)
 
 #: Coarse cells across the largest prototype's longest edge. On the 5 x 5 stand of tests/integration/test_stand.py
 #: (tree_small, sun at 45 degrees, 4M-path reference) the factors' mean over the reference's was 1.101 / 1.073 /
@@ -166,7 +169,9 @@ def forest_light(scene: Scene, sun: Sun, optics: LeafOptics, *, progress: Progre
            tuple(optics.transmittance), tolerance)
     if _LAST and _LAST[0][0] == key:
         return _LAST[0][1]
+    t0 = time.perf_counter()
     result = _forest_light(scene, sun, optics, tolerance)
+    log.info("forest lattice: %s instances, %s, %.2f s", f"{len(scene.instances):,}", result.stats(), time.perf_counter() - t0)
     _LAST[:] = [(key, result)]
     return result
 

@@ -8,6 +8,7 @@ the other per-leaf values.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,8 @@ from foliage_tools.pipeline.instances import from_prototypes
 from foliage_tools.pipeline.report import Progress
 from foliage_tools.pipeline.world import World, bake_world, prototype_means, traced_parts
 from foliage_tools.scene.model import Scene
+
+log = logging.getLogger(__name__)
 
 
 #: ``--gather auto``: rays per leaf, the largest power of two from AUTO_MAX down to AUTO_MIN whose rays over the
@@ -96,5 +99,6 @@ def bake_gather(scene: Scene, sun: Sun, optics: LeafOptics, rest: dict[int, np.n
                           gather.GatherParams(rays_per_leaf=rays, seed=seed))
              for tris, ids, count, leaves in traced_parts(world) if count or not world.lone]
     res = parts[0] if len(parts) == 1 else _joined(parts)
+    log.info("gather: %d rays per leaf over %s leaves, %.2f s", rays, f"{n:,}", res.seconds)
     counts = [p.leaves.count for p in scene.prototypes]
     return GatherBake(world, res, rays, prototype_means(world, res.e_scattered, len(counts), counts))

@@ -30,6 +30,7 @@ node unscattered (u_unscattered = 1 in an empty grid).
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -60,6 +61,8 @@ from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.vdb import Grid
 from foliage_tools.scene.write import LayerEdits, PrimvarEdit, stage_metadata, write_layer
+
+log = logging.getLogger(__name__)
 
 BASES = ("sun", "all")
 #: How the sun enters a ``--bases sun`` bake (lighting.lb): ``first-collision`` (the exactly attenuated sun
@@ -275,7 +278,12 @@ def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], p
     for i, proto in baked:
         sun_local = sun_in_prototype(scene, i, sun, warnings)
         dens = density_for_bake(scene, proto, DensityParams(resolution=params.resolution, method="area"), warnings)
-        out.append(bake_prototype(proto, i, sun_local, params, dens))
+        bake = bake_prototype(proto, i, sun_local, params, dens)
+        r = bake.result
+        log.info("lb <%s>: %s lattice (%s), %s, %d sweeps, residual %.2e%s, %.1f MLUPS, %.2f s", proto.path,
+                 "x".join(map(str, bake.grid.shape)), params.bases, r.solver, r.iterations, r.residual,
+                 "" if r.converged else " (not converged)", r.mlups, bake.seconds)
+        out.append(bake)
         progress.advance()
     return out
 

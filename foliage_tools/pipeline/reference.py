@@ -14,6 +14,7 @@ pooled over its instances (power over summed area) and each instance's means.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +34,8 @@ from foliage_tools.pipeline.world import (WORLD_MAX_TRIANGLES, World, assemble, 
                                           prototype_means, traced_alone, world_triangles)
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
+
+log = logging.getLogger(__name__)
 
 
 #: Per-leaf noise of the reference's E_scattered (relative RMS between two half-runs, scaled to the
@@ -216,6 +219,8 @@ def bake_reference(scene: Scene, sun: Sun, params: ReferenceParams, progress: Pr
         where = f"{len(world.triangles):,} triangles"
     message = f"tracing up to {params.paths:,} sun paths{goal} through {where}"
     result = reference.solve(inputs, rp, progress=_ProgressAdapter(progress, message))
+    log.info("reference: %s paths, per-leaf noise %.3f (total %.3f), %.1f s", f"{result.paths:,}", result.noise_rel,
+             result.noise_rel_total, result.seconds)
     return ReferenceBake(world, result, pooled)
 
 

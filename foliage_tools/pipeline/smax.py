@@ -9,6 +9,7 @@ counts every order (``--scatter leaves``; :mod:`foliage_tools.lighting.boulanger
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +30,8 @@ from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.schemas import ENVELOPE_API
 from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
+
+log = logging.getLogger(__name__)
 
 PATHS = ("auto", "reference", "fast")
 #: ``--scatter``: ``leaves`` lights the scatterers by the leaves' exact lit fractions and adds the higher orders
@@ -135,6 +138,8 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
             all_orders=lit is not None,
         )
         progress.advance()
+        log.info("smax <%s>: %d leaves, %s path, tau %.3g, scatterers %.2f s", proto.path, proto.leaves.count,
+                 params.path, float(env.tau), scatter_seconds)
         out.append(SmaxBake(i, env, light, scatter_seconds))
     return out
 
