@@ -10,7 +10,8 @@ Usage (the README's layer table)::
 Arguments: the layer, --leaf-optics, --sun, and optionally the methods. An SPP
 method takes options after colons: ``sppg:radiance:g16`` is ``--g-weights
 radiance --g-resolution 16`` (``:paper``: the default weights; ``:g0``: per-leaf depths; ``:orders`` / ``:once``: ``--g-orders`` /
-``--no-g-orders``; the exact slab's defaults are g16 and orders). The
+``--no-g-orders``; ``:rN``: ``--depth-resolution N``; the exact slab's defaults are g16, orders and the
+automatic depth resolution). The
 reference stops at 4 % per-leaf noise (a bin holds ~2000 leaves); bins are
 0.3 m of depth over the inner region |x|, |y| < 3.5 m, top to bottom.
 
@@ -79,6 +80,8 @@ def main(argv: list[str]) -> int:
                     kw["g_weights"] = opt
                 elif opt in ("orders", "once"):
                     kw["g_orders"] = opt == "orders"
+                elif opt.startswith("r"):  # sppg:r16 = --depth-resolution 16 (the density grid of the depths)
+                    kw["depth_resolution"] = int(opt[1:])
                 else:
                     kw["g_resolution"] = int(opt.removeprefix("g"))
             b = bake_spp(scene, sun, SppParams(optics=optics, sun=sun_t, model=model, **kw), [], Silent())[0].result

@@ -91,10 +91,13 @@ def run(path: Path, args) -> None:
     low = depth >= np.quantile(depth, 0.8)
     variants = [tuple(v.split(":")) for v in args.g_variants.split(",")]
     for model in ("spp", "exact"):
-        for dpath in ("rays", "grid"):
+        for dpath in args.depths.split(","):
+            dkind = "rays" if dpath == "rays" else "grid"
+            dres = int(dpath.removeprefix("grid")) if dpath.startswith("grid") and dpath != "grid" else None
             for k, (weights, gres, *more) in enumerate(variants):
                 gres = int(gres.removeprefix("g"))
-                bakes = bake_spp(scene, sun, SppParams(optics=optics, sun=tuple(args.sun), model=model, depth=dpath,
+                bakes = bake_spp(scene, sun, SppParams(optics=optics, sun=tuple(args.sun), model=model, depth=dkind,
+                                                       depth_resolution=dres,
                                                        g_weights=weights, g_resolution=gres,
                                                        g_orders="orders" in more), [], Silent())
                 r = {b.index: b.result for b in bakes}
@@ -129,6 +132,8 @@ def main() -> None:
     ap.add_argument("--leaf-optics", default="0.475,0.475")
     ap.add_argument("--noise", type=float, default=0.02)
     ap.add_argument("--paths", type=int, default=64_000_000)
+    ap.add_argument("--depths", default="rays,grid",
+                    help="depth paths of the rows: rays, grid (--depth-resolution auto) or gridN (--depth-resolution N)")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/bench_sppg_table3"))
     ap.add_argument("--g-variants", default="paper:g0,radiance:g0,paper:g16,radiance:g16",
                     help="G-factor variants of the sppg rows, WEIGHTS:gRES[:orders] (--g-weights, --g-resolution, g0: per leaf; "

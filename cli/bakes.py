@@ -10,6 +10,7 @@ from rich.table import Table
 
 from foliage_tools.cli import console
 from foliage_tools.cli.common import (
+    parse_depth_resolution,
     OUT, SCENE, parse_direct_samples, bake_options, common_options, direct_choice, direct_options, execute, gather_option,
     leaf_optics_from_flags, run,
     grid_precision_option, setup_logging, volume_purpose_option,
@@ -456,6 +457,13 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "where the true loss through the sides is 2-8 %. On isolated crowns a higher G brightens the exact "
                    "slab, which is already too bright there unless --g-orders. 0: per leaf. [default: 16 with --model exact, "
                    "0 with --model spp]")
+@click.option("--depth-resolution", "depth_resolution", default="auto", show_default=True, metavar="auto|N",
+              callback=parse_depth_resolution,
+              help="With grid depths: voxels along the longest foliage edge of the leaf-area density grid each leaf's "
+                   "depths are integrated through (the written grids keep --resolution). auto: per tree, the finest grid "
+                   "up to --resolution whose voxels holding a leaf hold 4 leaves on average, so the slab model sees a "
+                   "homogeneous medium rather than single leaves: per-leaf E_scattered error on tree_small / the oak / "
+                   "the sapling 0.35 / 0.41 / 0.43 at 64 voxels, 0.22 / 0.33 / 0.31 with auto (README).")
 @click.option("--depth", type=click.Choice(["auto", "rays", "grid"]), default="auto", show_default=True,
               help="How each leaf's optical depth toward the sun and the sample directions is measured (shinya2013 eq. 29). "
                    "grid: integrate the leaf-area density grid (own leaf's area taken out), assuming randomly oriented leaves. "
@@ -468,13 +476,13 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "term) and grid above.")
 @click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True,
               help="With --depth rays: origins per leaf, uniform over its area (seeded); more rays, less count noise (1/sqrt).")
-@gather_option("SPP's (the exact slab's, with or without --gfactor)", "primvars:foliage:sppg:scattered (spp with --no-gfactor)")
+@gather_option("SPPG's (SPP's with --no-gfactor)", "primvars:foliage:sppg:scattered (spp with --no-gfactor)")
 @volume_purpose_option
 @direct_options
 @bake_options
 @common_options
-def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, model: str | None, g_weights: str, g_orders: bool | None, g_resolution: int | None, depth: str,
-        rays_per_leaf: int, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bool, refine: bool, model: str | None, g_weights: str, g_orders: bool | None, g_resolution: int | None, depth_resolution: int | None,
+        depth: str, rays_per_leaf: int, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
         as_json: bool, quiet: bool, verbose: int) -> None:
     """Simplified plane-parallel scattering with the G-factor (shinya2013).
 
@@ -501,7 +509,7 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
             resolution=resolution, directions=directions, gfactor=not no_gfactor, refine=refine, model=model, g_weights=g_weights, g_orders=g_orders, g_resolution=g_resolution,
-            depth=depth, rays_per_leaf=rays_per_leaf, direct=direct_choice(direct_mode, direct_samples), gather=gather,
+            depth=depth, depth_resolution=depth_resolution, rays_per_leaf=rays_per_leaf, direct=direct_choice(direct_mode, direct_samples), gather=gather,
             volume_purpose=volume_purpose,
         )
 
