@@ -33,6 +33,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
+
+from bench_lb_storage import leaf_errors  # noqa: E402  (the same error measure as the storage bench)
 
 #: Suns (azimuth, elevation in degrees) relit from the bases besides the scene's own (as bench_lb_storage).
 EXTRA_SUNS = ((0, 10), (45, 60), (90, 30), (135, 85), (180, 45), (225, 20), (270, 70), (315, 5))
@@ -73,13 +76,6 @@ def read_total(vdb: Path, grid) -> np.ndarray:
         sl = tuple(slice(a, a + n) for a, n in zip(lo, g.values.shape[:3]))
         out[sl + (k,)] = g.values
     return out
-
-
-def leaf_errors(x: np.ndarray, r: np.ndarray) -> tuple[float, float]:
-    """(relative RMS over leaves, largest per-leaf relative error where r > 0), over all channels."""
-    rms = float(np.sqrt(np.sum((x - r) ** 2) / np.sum(r**2)))
-    pos = r > 0
-    return rms, float(np.max(np.abs(x - r)[pos] / r[pos]))
 
 
 def main(argv=None) -> int:
