@@ -306,11 +306,8 @@ def _auto_or_whole(value, ctx: click.Context, param: click.Parameter) -> int | N
 
 
 def parse_depth_resolution(ctx: click.Context, param: click.Parameter, value) -> int | None:
-    """``--depth-resolution auto|N`` (spp): None for auto, else N voxels (4-512)."""
-    n = _auto_or_whole(value, ctx, param)
-    if n is not None and not (4 <= n <= 512):
-        raise click.BadParameter(f"{n} voxels: use auto or a resolution between 4 and 512.", ctx=ctx, param=param)
-    return n
+    """``--depth-resolution auto|N`` (spp): None for auto, else N voxels (``SppParams`` checks the range)."""
+    return _auto_or_whole(value, ctx, param)
 
 
 def parse_gather(ctx: click.Context, param: click.Parameter, value) -> int | None:
