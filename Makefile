@@ -8,7 +8,7 @@ EXAMPLE := examples/tree_small.usda
 DEMO    := out/demo
 OAK     := ../shared/assets/webots_oak/oak.usda
 
-.PHONY: setup setup-bpy demo lint test test-slow bench clean
+.PHONY: setup setup-bpy demo lint test test-dcc test-slow bench clean
 
 setup: $(STAMP)
 
@@ -30,7 +30,11 @@ lint: setup
 # the default suite in TEST_WORKERS processes, whole test files each (module fixtures are built once)
 TEST_WORKERS ?= 2
 test: setup lint
-	$(PY) -m pytest -m "not slow" -q -n $(TEST_WORKERS) --dist loadfile
+	$(PY) -m pytest -m "not slow and not dcc" -q -n $(TEST_WORKERS) --dist loadfile
+
+# the DCC round trip (issue #17): bakes imported into Blender, from the bpy venv it makes first (~350 MB once)
+test-dcc: setup setup-bpy
+	$(PY) -m pytest -m dcc -q
 
 # Blender as a Python module (bpy, ~350 MB) in its own venv: bpy pins its own Python (3.11 for Blender 5.0)
 # and numpy, so it cannot share .venv. tests/integration/test_blender_roundtrip.py runs Blender from it in a

@@ -1,10 +1,11 @@
-"""Issue #17: a bake of tree_small imported into Blender (``bpy``, Blender as a Python module) arrives whole.
+"""Issue #17: bakes of tree_small, the Webots oak and the bundled forest imported into Blender (``bpy``, Blender as a
+Python module) arrive whole.
 
 Blender runs in its own venv (bpy pins its own Python and numpy), in a
 subprocess running ``tests/blender/usd_import_probe.py``: ``make setup-bpy``
 makes ``.venv-bpy/`` (README, "Blender"), or point ``FOLIAGE_BPY_PYTHON`` at
 the Python of any venv that has ``bpy``. Without one, the test is skipped and
-says so.
+says so. Marker ``dcc``: ``make test-dcc`` (run by ``.ci/run`` after ``make test``) installs the venv first.
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.bake import BakeParams, run_bake
 from foliage_tools.pipeline.direct import DirectChoice
 
+pytestmark = pytest.mark.dcc
+
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "examples" / "tree_small.usda"
 PROBE = REPO / "tests" / "blender" / "usd_import_probe.py"
@@ -33,20 +36,31 @@ def bpy_python() -> Path | None:
     return next((c for c in candidates if c.is_file()), None)
 
 
-@pytest.fixture(scope="module")
-def blender_import(tmp_path_factory):
-    python = bpy_python()
-    if python is None:
-        pytest.skip("no Blender Python: `make setup-bpy` (a venv with `pip install bpy` at .venv-bpy), or set "
-                    "FOLIAGE_BPY_PYTHON to the python of a venv that has bpy")
-    out = tmp_path_factory.mktemp("blender") / "out"
-    report = run_bake(EXAMPLE, out, BakeParams(optics=parse_leaf_optics(None), resolution=12, direct=DirectChoice(mode="volume")))
-    final = Path(report.stats["result"])
-    r = subprocess.run([str(python), str(PROBE), str(final)], capture_output=True, text=True, timeout=300,
-                       cwd=tmp_path_factory.mktemp("blender-cwd"))
+NO_BPY = ("no Blender Python: `make setup-bpy` (a venv with `pip install bpy` at .venv-bpy), or set "
+          "FOLIAGE_BPY_PYTHON to the python of a venv that has bpy")
+
+
+def _probe(python: Path, final: Path, cwd: Path) -> dict:
+    """Blender's default USD import of ``final``, as the probe script reports it."""
+    r = subprocess.run([str(python), str(PROBE), str(final)], capture_output=True, text=True, timeout=300, cwd=cwd)
     lines = [line for line in r.stdout.splitlines() if line.startswith("PROBE")]
     assert r.returncode == 0 and lines, f"Blender probe failed ({python}):\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
-    return final, json.loads(lines[-1][len("PROBE"):])
+    return json.loads(lines[-1][len("PROBE"):])
+
+
+def _bake_and_import(tree: Path, tmp_path_factory) -> tuple[Path, dict]:
+    python = bpy_python()
+    if python is None:
+        pytest.skip(NO_BPY)
+    out = tmp_path_factory.mktemp("blender") / "out"
+    report = run_bake(tree, out, BakeParams(optics=parse_leaf_optics(None), resolution=12, direct=DirectChoice(mode="volume")))
+    final = Path(report.stats["result"])
+    return final, _probe(python, final, tmp_path_factory.mktemp("blender-cwd"))
+
+
+@pytest.fixture(scope="module")
+def blender_import(tmp_path_factory):
+    return _bake_and_import(EXAMPLE, tmp_path_factory)
 
 
 def _objects(probe, kind=None):
@@ -122,15 +136,10 @@ def blender_forest(tmp_path_factory):
 
     python = bpy_python()
     if python is None:
-        pytest.skip("no Blender Python: `make setup-bpy` (a venv with `pip install bpy` at .venv-bpy), or set "
-                    "FOLIAGE_BPY_PYTHON to the python of a venv that has bpy")
+        pytest.skip(NO_BPY)
     work = tmp_path_factory.mktemp("blender-forest")
     final = bake_density_lb(moved_bundled_forest(work / "in"), work / "out")
-    r = subprocess.run([str(python), str(PROBE), str(final)], capture_output=True, text=True, timeout=300,
-                       cwd=tmp_path_factory.mktemp("blender-cwd"))
-    lines = [line for line in r.stdout.splitlines() if line.startswith("PROBE")]
-    assert r.returncode == 0 and lines, f"Blender probe failed ({python}):\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}"
-    return final, json.loads(lines[-1][len("PROBE"):])
+    return final, _probe(python, final, tmp_path_factory.mktemp("blender-cwd"))
 
 
 def test_a_native_instance_forest_volume_arrives_over_each_tree(blender_forest):
@@ -164,3 +173,36 @@ def test_a_native_instance_forest_volume_arrives_over_each_tree(blender_forest):
         box = np.asarray(o["world_bound_box"])
         lo, hi = box.min(axis=0), box.max(axis=0)
         assert np.all(leaves[inst] >= lo - 1e-3) and np.all(leaves[inst] <= hi + 1e-3), inst
+
+
+def test_the_oak_arrives_with_every_per_leaf_value_and_grid(oak, tmp_path_factory):
+    """A third-party tree (the Webots oak: its own prim names, two wood meshes): every per-face ``foliage:`` primvar
+    (float or colour) pxr reads on its leaf mesh arrives in Blender with the same values, and the volume with every
+    field."""
+    from pxr import Usd, UsdGeom, UsdVol
+
+    final, probe = _bake_and_import(oak, tmp_path_factory)
+    stage = Usd.Stage.Open(str(final))
+    meshes = _objects(probe, "MESH")
+    assert {"leaves_0", "wood_1", "wood_2"} <= set(meshes)
+    leaves = meshes["leaves_0"]
+    pv = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Tree/leaves_0"))
+    compared = []
+    for primvar in pv.GetPrimvars():
+        name = primvar.GetPrimvarName()
+        if not name.startswith("foliage:") or primvar.GetElementSize() != 1:
+            continue
+        values = np.asarray(primvar.Get())
+        if values.dtype.kind != "f" or values.ndim > 2 or primvar.GetInterpolation() != UsdGeom.Tokens.uniform:
+            continue
+        attr = leaves["attributes"].get(name)
+        assert attr is not None, f"{name} did not arrive"
+        assert attr["domain"] == "FACE" and len(attr["values"]) == leaves["faces"] == len(values), name
+        np.testing.assert_allclose(attr["values"], values, rtol=1e-6, atol=0, err_msg=name)
+        compared.append(name)
+    # the bake's per-leaf scattered light of each method and the 8 per-direction s_max at least
+    assert {"foliage:lb:scattered", "foliage:spp:scattered", *(f"foliage:smax{k}" for k in range(8))} <= set(compared)
+    volumes = _objects(probe, "VOLUME")
+    assert set(volumes) == {"FoliageLighting"}
+    fields = UsdVol.Volume(stage.GetPrimAtPath("/Tree/FoliageLighting")).GetFieldPaths()
+    assert {g["name"] for g in volumes["FoliageLighting"]["grids"]} == set(fields)
