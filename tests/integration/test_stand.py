@@ -29,6 +29,7 @@ from foliage_tools.pipeline.lb import LBBakeParams, run_lb
 from foliage_tools.pipeline.reference import ReferenceParams, run_reference
 from foliage_tools.pipeline import world
 from foliage_tools.pipeline.smax import SmaxParams, run_smax
+from foliage_tools.pipeline.spp import SppParams, run_spp
 from foliage_tools.scene.read import open_stage
 
 REPO = Path(__file__).resolve().parents[2]
@@ -75,6 +76,8 @@ def stand(tmp_path_factory):
         run_reference(scene, d / f"{name}.ref.usda", ReferenceParams(optics=optics, sun=SUN, paths=paths, seed=5))
         run_lb(scene, d / f"{name}.lb.usda", LBBakeParams(optics=optics, sun=SUN, resolution=32, gather=128, direct=DIRECT))
         run_smax(scene, d / f"{name}.smax.usda", SmaxParams(optics=optics, sun=SUN, direct=DIRECT))
+        # SPP's defaults but the gather (eq. 31's neighbour depths, then the forest lattice's factor)
+        run_spp(scene, d / f"{name}.spp.usda", SppParams(optics=optics, sun=SUN, direct=DIRECT, gather=0))
         # the lattice alone (no gather), scaled per instance by the forest lattice
         run_lb(scene, d / f"{name}.lbf.usda", LBBakeParams(optics=optics, sun=SUN, resolution=32, direct=DIRECT, gather=0))
         out[name] = d
@@ -91,7 +94,7 @@ def test_every_instance_within_ten_percent_of_the_reference(stand):
     rd, rs = _instance_values(stand / "stand.ref.usda", "ref")
     assert rd.shape == (SIDE * SIDE, 3)
     ref_total = (rd + rs)[:, 1]
-    for method, layer in (("lb", "stand.lb.usda"), ("smax", "stand.smax.usda")):
+    for method, layer in (("lb", "stand.lb.usda"), ("smax", "stand.smax.usda"), ("spp", "stand.spp.usda")):
         d, s = _instance_values(stand / layer, method)
         # the issue's bound; the direct part is exact (its sampling error over an instance's 1500 leaves is
         # ~0.1 %), so what is left is the scattered light (10-15 % of the total here) and its error
@@ -104,7 +107,7 @@ def test_the_centre_tree_is_darker_than_the_same_tree_alone_by_the_references_fa
     ad, as_ = _tree_values(stand / "alone.ref.usda", "ref")
     mc = (rd + rs)[CENTRE, 1] / (ad + as_)[1]
     assert mc < 0.97  # the neighbours shade the centre tree: a stand effect to reproduce, not noise
-    for method in ("lb", "smax"):
+    for method in ("lb", "smax", "spp"):
         d, s = _instance_values(stand / f"stand.{method}.usda", method)
         bd, bs = _tree_values(stand / f"alone.{method}.usda", method)
         factor = (d + s)[CENTRE, 1] / (bd + bs)[1]
