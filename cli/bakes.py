@@ -442,13 +442,13 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "it). Measured: it hardly moves G in a uniform layer and lowers it on isolated crowns (tree_small "
                    "0.68 -> 0.59), which helps the exact slab only with bright leaves.")
 @click.option("--g-orders/--no-g-orders", "g_orders", default=None,
-              help="Apply the G-factor once per order of scattering (the default with --model exact; --no-g-orders: once, "
-                   "shinya2013 eq. 28, the default with --model spp): G is a share of once-scattered light, and light "
-                   "scattered n times has left the real medium n times over, so the scattered light is scaled by "
-                   "G s / (1 - G (1 - s)), s = the exact slab's once-scattered share at the leaf, instead of by G "
-                   "(shinya2013 eq. 28). It matters for bright leaves (albedo near 1), where s is small; use it with "
-                   "--g-resolution 16 (in shinya2013's own test, albedo 0.95, the exact slab + G on tree_small goes from "
-                   "0.30 to 0.05 binned error, the oak 0.27 -> 0.14; README).")
+              help="Apply the G-factor per order of scattering (the default with --model exact; --no-g-orders: once, "
+                   "shinya2013 eq. 28, the default with --model spp): G is a share of once-scattered light; each later "
+                   "order is lost at the rate light re-meets a leaf, so the scattered light is scaled by "
+                   "G s / (1 - (1 - s) rho), s = the exact slab's once-scattered share at the leaf and rho = the real "
+                   "medium's recollision probability over the slab's there, instead of by G (lighting/gfactor.py). It "
+                   "matters for bright leaves (albedo near 1), where s is small (in shinya2013's own test, albedo "
+                   "0.95, the exact slab + G on the oak goes from 0.28 to 0.065 binned error; README).")
 @click.option("--g-resolution", "g_resolution", type=click.IntRange(min=0), default=None,
               help="Measure the G-factor's depths through a coarse leaf-area density grid of this many voxels along the "
                    "longest foliage edge (shinya2013 keeps G on a ~16^3 grid), not from each leaf's own depths. G is "

@@ -143,24 +143,32 @@ along the longest foliage edge (0, the default: each leaf's own depths).
 Orders of scattering (``SPPGParams.g_orders``; ``foliage spp --g-orders``)
 --------------------------------------------------------------------------
 Eqs. (24)-(27) take I' = I0 (app. A.2): G is the present share of the
-*once*-scattered light. Light scattered n times has crossed the missing
-medium's region n times over; if each order keeps the share G of the order
-before it, E_present = Σ_n G^n E_n. With the orders' ratio taken as constant
-(E_{n+1} = a E_n, so the once-scattered share of the slab's E is s = E_1/E =
-1 - a) the sum is
+*once*-scattered light. The later orders are not lost at the same rate: what
+sets how much of order n reaches order n + 1 is the chance that light a leaf
+scatters meets another leaf, the recollision probability p of the spectral
+invariant (order n+1 = ω p × order n; reviewed by Wang et al. 2018, Remote
+Sens. 10(11), 1805; ``boulanger.higher_orders`` uses it for s_max). With the
+slab's orders in a constant ratio a (E_{n+1} = a E_n, so its once-scattered
+share is s = E_1/E = 1 - a) and the real medium's ratio a ρ, ρ = p_real /
+p_slab at the point, the present light is
 
-    G_orders = G s / (1 - G (1 - s)),
+    E_present = G E_1 Σ_n (a ρ)^{n-1} = E G s / (1 - (1 - s) ρ),
 
-1 for G = 1, G for s = 1 (all light scattered once: albedo -> 0), and below
-G for bright leaves. s is taken from the exact slab at the leaf (its solution
-at albedo ε = 1e-4 scaled by ω/ε is its once-scattered part) for either
-``model``. This departs from eq. (28), which applies the single-scattering G
-to all orders. Measured (2026-12-02, README "The G-factor's weights and
-depths"): with ``--g-resolution 16`` it brings exact + G in the paper's
-setting (r = t, albedo 0.95, sun from above) from 0.389 / 0.351 to 0.045 /
-0.056 on tree_small (ray / grid depths; the paper's 6.2 %) and from 0.379 /
-0.359 to 0.136 / 0.108 on the oak, and keeps the layer within -9.2 … -6.6 %
-(60°) and -3.6 … +0.2 % (30°) per bin.
+    p = 1 - (1/N) Σ_v e^{-h_v}  (real: h_v the depth to the medium's boundary
+    toward v; slab: h_v = L_v, the distance to the slab's face, as for F_v),
+
+ρ clipped to [0, 1] (depth noise can put the real p above the slab's; the
+real medium never holds light longer than the infinite slab around it). It
+is G for s = 1 (albedo -> 0) and for ρ = 1 (an interior point of a uniform
+layer: the slab's own orders), 1 for G = ρ = 1, and never above G. s is taken
+from the exact slab at the leaf (its solution at albedo ε = 1e-4 scaled by
+ω/ε is its once-scattered part) for either ``model``; p from the same depths
+as G. This departs from eq. (28), which applies the single-scattering G to
+all orders. (Session 12's form took ρ = G, each order keeping the share G of
+the one before: G s / (1 - G (1 - s)). p per point, not the crown mean the
+spectral invariant is usually quoted with: the mean over a finite layer's
+leaves includes its edges and darkened the inner region by 8-13 %.)
+Measured in README "The G-factor's weights and depths".
 
 Sample directions: a spherical Fibonacci set (González 2010, "Measurement of
 areas on a sphere using Fibonacci and latitude-longitude lattices"), z_i =
@@ -461,9 +469,10 @@ class SPPGParams:
     single-scattering radiance from that direction (then G is per channel: the phase differs with r and t)."""
 
     g_orders: bool = False
-    """Apply G once per order of scattering (module docstring, "Orders of scattering"): with s the exact slab's
-    once-scattered share of E_scattered, the scattered light is scaled by G s / (1 - G (1 - s)) instead of G
-    (shinya2013 eq. (28) applies G once). False: the paper's."""
+    """Apply G per order of scattering (module docstring, "Orders of scattering"): with s the exact slab's
+    once-scattered share of E_scattered and ρ the real medium's recollision probability over the slab's, the
+    scattered light is scaled by G s / (1 - (1 - s) ρ) instead of G (shinya2013 eq. (28) applies G once). False:
+    the paper's."""
 
     def __post_init__(self) -> None:
         if self.g_weights not in G_WEIGHTS:
@@ -511,7 +520,7 @@ class SPPGResult:
     """The paper's single-scattering baseline (scattered = 0)."""
     gfactor: np.ndarray
     """(L,) G toward the sun (with ``g_weights="radiance"`` or ``g_orders`` the mean over the channels' G; with
-    ``g_orders`` the factor applied, G s / (1 - G (1 - s)))."""
+    ``g_orders`` the factor applied, G s / (1 - (1 - s) ρ))."""
     directions: np.ndarray
     """(N, 3) the sample directions used."""
     mu0: float
@@ -618,10 +627,31 @@ def _once_scattered_share(u, big_u, mu, weights, albedo, phases, total) -> np.nd
     return np.clip(share, 0.0, 1.0)
 
 
-def _orders_g(g, share) -> np.ndarray:
-    """G_n = G s / (1 - G (1 - s)): each order of scattering keeps the share G of the one before (module docstring)."""
-    den = 1.0 - g * (1.0 - share)
-    return np.where(den > 0.0, g * share / np.where(den > 0.0, den, 1.0), 1.0)
+def _slab_lengths(vn, mu0: float, light_depth, light_thickness) -> np.ndarray:
+    """(P, N) L_v: optical distance from each point to the face of its slab toward each direction (``_gfactor_kernel``'s
+    L: the top face for v_n > 0, the bottom one for v_n < 0, inf along the horizon)."""
+    t0 = mu0 * np.asarray(light_depth, dtype=np.float64)[:, None]
+    below = mu0 * (np.asarray(light_thickness, dtype=np.float64) - np.asarray(light_depth, dtype=np.float64))[:, None]
+    v = np.asarray(vn, dtype=np.float64)[None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(v > 0.0, t0 / np.where(v > 0.0, v, 1.0), np.where(v < 0.0, below / np.where(v < 0.0, -v, 1.0), np.inf))
+
+
+def recollision_ratio(boundary_depth, vn, mu0: float, light_depth, light_thickness) -> np.ndarray:
+    """(P,) ρ = p_real / p_slab in [0, 1], p = 1 - mean_v exp(-depth toward v) (module docstring, "Orders of
+    scattering"); 1 where the slab holds no medium (p_slab = 0)."""
+    h = np.asarray(boundary_depth, dtype=np.float64)
+    p_real = 1.0 - np.exp(-h).mean(axis=1)
+    p_slab = 1.0 - np.exp(-_slab_lengths(vn, mu0, light_depth, light_thickness)).mean(axis=1)
+    ratio = np.divide(p_real, p_slab, out=np.ones_like(p_real), where=p_slab > 0.0)
+    return np.clip(ratio, 0.0, 1.0)
+
+
+def _orders_g(g, share, rho) -> np.ndarray:
+    """G s / (1 - (1 - s) ρ): the first order keeps G, each later one ρ of the slab's ratio (module docstring)."""
+    rho = np.asarray(rho, dtype=np.float64)
+    den = 1.0 - (1.0 - share) * rho
+    return np.where(den > 0.0, g * share / np.where(den > 0.0, den, 1.0), g)
 
 
 def solve_sppg(
@@ -750,14 +780,17 @@ def solve_sppg(
     else:
         scat = spp_field(u[:, None], big_u[:, None], albedo=albedo[None, :], forward_fraction=t_sun[None, :]).leaf_irradiance
 
-    def orders(g, uu, ww, mu, e_model) -> np.ndarray:
-        """``g_orders``: G per order of scattering from the exact slab's once-scattered share."""
+    def orders(g, uu, ww, mu, e_model, g_light_depth, g_light_thickness) -> np.ndarray:
+        """``g_orders``: G per order of scattering, from the exact slab's once-scattered share and the recollision
+        ratio through G's depths."""
         if not params.g_orders:
             return g
         exact = e_model if model == "exact" else _exact_leaf_irradiance(uu, ww, mu, leaf_w, albedo, phases)
-        return _orders_g(g, _once_scattered_share(uu, ww, mu, leaf_w, albedo, phases, exact))
+        share = _once_scattered_share(uu, ww, mu, leaf_w, albedo, phases, exact)
+        rho = recollision_ratio(g_depths.sample_depth, dirs @ upv, mu, g_light_depth, g_light_thickness)
+        return _orders_g(g, share, rho[:, None])
 
-    g_sun = orders(g_sun, u, big_u, mu0, scat)
+    g_sun = orders(g_sun, u, big_u, mu0, scat, g_depths.sun_depth, g_depths.sun_thickness)
 
     # --- sky -----------------------------------------------------------------
     sky_direct = np.zeros((n_leaves, n_ch))
@@ -774,7 +807,8 @@ def solve_sppg(
             else:
                 tj = np.array([float(forward_fraction(ph, mus[j])) for ph in phases])
                 ej = spp_field(uj[:, None], wj[:, None], albedo=albedo[None, :], forward_fraction=tj[None, :]).leaf_irradiance
-            gj = orders(g_of(dirs[j], g_depths.sample_depth[:, j], g_depths.sample_thickness[:, j]), uj, wj, float(mus[j]), ej)
+            gd, gw = g_depths.sample_depth[:, j], g_depths.sample_thickness[:, j]
+            gj = orders(g_of(dirs[j], gd, gw), uj, wj, float(mus[j]), ej, gd, gw)
             if sample_visible is None:
                 vis_j = np.exp(-uj)
             else:

@@ -121,8 +121,9 @@ class SppParams:
     """``--g-weights``: how G combines its sample directions (lighting.gfactor): ``paper`` (shinya2013 eq. 27, the
     equal-weight mean) or ``radiance`` (weighted by the plane-parallel single-scattering radiance from each)."""
     g_orders: bool | None = None
-    """``--g-orders``: G once per order of scattering, G s / (1 - G (1 - s)) with s the exact slab's once-scattered
-    share (lighting.gfactor); False: G once (shinya2013 eq. 28). The sppGFactor grid stays G. None: True with the
+    """``--g-orders``: G per order of scattering, G s / (1 - (1 - s) ρ) with s the exact slab's once-scattered
+    share and ρ the real medium's recollision probability over the slab's (lighting.gfactor); False: G once
+    (shinya2013 eq. 28). The sppGFactor grid stays G. None: True with the
     exact slab, False with the paper's closed form (which already loses half the scattered light: per order it
     measured worse, README)."""
     g_resolution: int | None = None

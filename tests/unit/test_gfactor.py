@@ -782,28 +782,67 @@ def test_depth_noise_alone_lowers_g_and_smoother_depths_lift_it_back():
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.floats(0.0, 1.0), st.floats(0.0, 1.0), st.integers(1, 200))
-def test_orders_g_is_the_sum_of_g_to_the_n_over_a_geometric_series_of_orders(g, share, terms):
-    """G s / (1 - G (1 - s)) = Σ_n G^n E_n / Σ_n E_n for E_n ∝ (1 - s)^{n-1} (the definition, summed directly).
+@given(st.floats(0.0, 1.0), st.floats(0.0, 1.0), st.floats(0.0, 1.0))
+def test_orders_g_is_the_sum_over_a_geometric_series_of_orders(g, share, rho):
+    """G s / (1 - (1 - s) ρ) = G Σ_n (ρ a)^{n-1} E_1 / Σ_n a^{n-1} E_1, a = 1 - s (the definition, summed directly):
+    the first order keeps G, each later one the real ratio ρ a of the slab's a.
 
-    The direct sum runs to 4000 orders; its tail beyond is (1 - s)^4000 of the total, so the comparison holds to
-    1e-9 wherever (1 - s)^4000 < 1e-10, i.e. s > 6e-3 (below that both sides are compared at s = 6e-3's bound).
+    The direct sums run to 4000 orders; their tails beyond are a^4000 of the totals, so the comparison holds to
+    1e-9 wherever a^4000 < 1e-10, i.e. s > 6e-3 (below that both sides are compared at s = 6e-3's bound).
     """
     share = max(share, 6e-3)
+    a = 1.0 - share
     n = np.arange(1, 4001)
-    e_n = (1.0 - share) ** (n - 1)
-    want = float(np.sum(g**n * e_n) / np.sum(e_n))
-    assert float(gf._orders_g(np.array(g), np.array(share))) == pytest.approx(want, abs=1e-9)
+    want = float(g * np.sum((rho * a) ** (n - 1)) / np.sum(a ** (n - 1)))
+    assert float(gf._orders_g(np.array(g), np.array(share), np.array(rho))) == pytest.approx(want, abs=1e-9)
 
 
 def test_orders_g_limits():
-    """G = 1 stays 1 (plane-parallel), s = 1 (single scattering only) leaves G, G = 0 stays 0; never above G."""
+    """G = ρ = 1 stays 1 (plane-parallel), s = 1 (single scattering only) and ρ = 1 (the slab's own orders) leave G,
+    G = 0 stays 0; never above G; and ρ = G is session 12's form, each order keeping G of the one before."""
     g = np.linspace(0.0, 1.0, 11)
-    assert np.all(gf._orders_g(np.ones(5), np.linspace(0.0, 1.0, 5)) == 1.0)  # incl. s = 0, G = 1: 1, not 0/0
-    np.testing.assert_allclose(gf._orders_g(g, np.ones_like(g)), g, rtol=0, atol=1e-15)
-    assert np.all(gf._orders_g(np.zeros(5), np.linspace(0.0, 1.0, 5)) == 0.0)
+    shares = np.linspace(0.0, 1.0, 5)
+    assert np.all(gf._orders_g(np.ones(5), shares, np.ones(5)) == 1.0)  # incl. s = 0: 1, not 0/0
+    np.testing.assert_allclose(gf._orders_g(g, np.ones_like(g), np.zeros_like(g)), g, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(gf._orders_g(g, np.full_like(g, 0.3), np.ones_like(g)), g, rtol=0, atol=1e-15)
+    assert np.all(gf._orders_g(np.zeros(5), shares, np.full(5, 0.5)) == 0.0)
     for s in (0.05, 0.3, 0.8):
-        assert np.all(gf._orders_g(g, np.full_like(g, s)) <= g + 1e-15)
+        for rho in (0.0, 0.5, 0.99):
+            assert np.all(gf._orders_g(g, np.full_like(g, s), np.full_like(g, rho)) <= g + 1e-15)
+        np.testing.assert_allclose(gf._orders_g(g, np.full_like(g, s), g), g * s / (1 - g * (1 - s)), rtol=1e-14)
+
+
+def test_recollision_ratio_is_one_in_an_infinite_slab_and_the_balls_closed_form_at_its_centre():
+    """ρ = p_real / p_slab, p = 1 - mean_v e^{-h_v}.
+
+    In a horizontally infinite uniform slab every ray's real boundary is the slab's face (h_v = L_v), so ρ = 1 to
+    rounding. At the centre of a uniform ball of optical radius R every h_v is R, so p_real = 1 - e^{-R} exactly,
+    while the point's slab (top R μ0 above, bottom R μ0 below: d0 = R, w0 = 2R along the sun) has
+    p_slab = 1 - mean_v e^{-R μ0 / |v_n|}, larger: the closed forms, to the grid's voxelisation of the ball
+    (the ball's centre voxel sees R to within half a voxel of 20: bound 3 %).
+    """
+    grid, rho, column = wide_slab()
+    dirs = gf.sample_directions(16)
+    for elevation in (20.0, 60.0, 89.0):
+        sun = sun_at(elevation)
+        s = dp.depth_samples(rho, grid, sun_direction=sun, directions=dirs, points=column)
+        r = gf.recollision_ratio(s.sample_depth, dirs[:, 2], float(sun[2]), s.sun_depth, s.sun_thickness)
+        np.testing.assert_allclose(r, 1.0, atol=1e-12)
+    n, lad = 41, 0.1  # a ball of radius 20 voxels, optical radius R = G_leaf LAD r = 0.5 * 0.1 * 20 = 1 (LAD in 1/voxel)
+    grid = GridSpec(origin=(0.0, 0.0, 0.0), voxel_size=1.0, shape=(n, n, n))
+    ijk = np.indices(grid.shape).reshape(3, -1).T
+    centre = np.array([n // 2] * 3)
+    inside = np.linalg.norm(ijk - centre, axis=1) <= 20.0
+    dens = np.where(inside, lad, 0.0).reshape(grid.shape)
+    sun = sun_at(50.0)
+    s = dp.depth_samples(dens, grid, sun_direction=sun, directions=dirs, points=grid.index_to_world(centre[None, :]))
+    big_r = 0.5 * lad * 20.0
+    assert s.sample_depth[0] == pytest.approx(np.full(len(dirs), big_r), rel=0.03)  # the ball's depths, as read
+    p_real = 1.0 - math.exp(-big_r)
+    p_slab = 1.0 - np.mean(np.exp(-big_r * sun[2] / np.abs(dirs[:, 2])))
+    got = gf.recollision_ratio(s.sample_depth, dirs[:, 2], float(sun[2]), s.sun_depth, s.sun_thickness)
+    assert got[0] == pytest.approx(p_real / p_slab, rel=0.03)
+    assert got[0] < 0.9  # a ball lets out light the slab around its centre would keep (1 - ρ = 0.2 here, 6x the bound)
 
 
 def test_once_scattered_share_against_the_isotropic_slabs_first_order():
@@ -855,7 +894,8 @@ def test_g_orders_in_solve_sppg():
         w = leaf_weights(np.full(3, 0.8), gf.EXACT_STREAMS)
         exact = gf._exact_leaf_irradiance(s.sun_depth, s.sun_thickness, sun[2], w, np.asarray(OPTICS.albedo), phases)
         share = gf._once_scattered_share(s.sun_depth, s.sun_thickness, sun[2], w, np.asarray(OPTICS.albedo), phases, exact)
-        g_n = gf._orders_g(base.gfactor[:, None], share)
+        rho = gf.recollision_ratio(s.sample_depth, dirs @ np.array([0.0, 0.0, 1.0]), sun[2], s.sun_depth, s.sun_thickness)
+        g_n = gf._orders_g(base.gfactor[:, None], share, rho[:, None])
         np.testing.assert_allclose(res.sppg.scattered, g_n * base.spp.scattered, rtol=1e-12)
         assert np.all(res.sppg.scattered <= base.sppg.scattered * (1 + 1e-12))
     grid, rho, column = wide_slab()
