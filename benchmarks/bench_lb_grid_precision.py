@@ -1,24 +1,25 @@
-"""Issue 21: the LB grids on disk as float vs half (``foliage lb --grid-precision``) - file size and the error.
+"""Issue 21: the LB relighting grids on disk - float vs half, every node vs the nodes the relighting reads - size and error.
 
 Usage::
 
-    python benchmarks/bench_lb_grid_precision.py [--resolution 64] [--scene examples/tree_small.usda]
+    python benchmarks/bench_lb_grid_precision.py [--resolution 64] [--scene examples/tree_small.usda] [--haar]
 
-The relightable bake (``foliage lb --bases all --gather 0``: lbAmbient + lbBase01..18, RGB) runs
-twice through ``run_lb``, with ``grid_precision="float"`` and ``"half"``; both ``.vdb`` files are
-read back with ``scene.vdb.read_grid``. Reported, half against float:
+The relightable bake (``foliage lb --bases all --gather 0``: lbAmbient + lbBase01..18, RGB) runs through ``run_lb``
+with ``grid_precision`` ``float`` / ``half`` and ``base_extent`` ``lattice`` / ``leaves``; every ``.vdb`` is read back
+with ``scene.vdb.read_grid`` (and ``on_lattice``). Reported against the float lattice file:
 
-* the two files' sizes and their ratio;
-* per grid (19 grids x RGB): RMS over the nodes of (half - float) relative to the grid's maximum,
-  and the largest node error relative to the grid's maximum (binary16: <= 2^-11 = 4.9e-4 of a
-  normal value, so of the maximum too);
-* per leaf: E_scattered relit from the read-back bases (``lb.relight``; the never-scattered part is
-  the bake's exact one, which is not stored) for the scene's sun and 8 suns over the sphere:
-  relative RMS over leaves ``sqrt(sum (x - r)^2 / sum r^2)`` and the largest per-leaf relative error.
+* each file's size and the ratio;
+* per grid (19 grids x RGB), over the nodes the relighting reads (``geometry.voxelize.stencil_mask`` of the leaves'
+  corners and centres, the nodes ``leaves`` keeps): RMS of the difference relative to the grid's maximum, and the
+  largest node error (binary16: <= 2^-11 = 4.9e-4 of a normal value, so of the maximum too);
+* per leaf: E_scattered relit from the read-back bases (``lb.relight``; the never-scattered part is the bake's exact
+  one, which is not stored) for the scene's sun and 8 suns over the sphere: relative RMS over leaves
+  ``sqrt(sum (x - r)^2 / sum r^2)`` and the largest per-leaf relative error.
 
-Both bakes solve the same problem; the float grids read back are checked to equal the half run's
-in-memory fields (so only the disk copy differs). Nothing here is a test: the bounds are in
-tests/unit/test_vdb_half.py and tests/integration/test_lb_stage.py.
+``--haar`` (needs PyWavelets, ``pip install PyWavelets``): steele2010 sec. 4.2's Haar compression for comparison,
+2 levels (4^3 blocks) per grid and channel of the float lattice, coefficients below a threshold x the grid's
+maximum dropped, the rest stored as a sparse half grid (its file size measured), reconstructed and scored the same
+way. Nothing here is a test: the bounds are in tests/unit/test_vdb_half.py and tests/integration/test_lb_stage.py.
 """
 
 from __future__ import annotations
@@ -42,8 +43,9 @@ EXTRA_SUNS = ((0, 10), (45, 60), (90, 30), (135, 85), (180, 45), (225, 20), (270
 GRIDS = ["lbAmbient"] + [f"lbBase{k:02d}" for k in range(1, 19)]
 
 
-def bake(scene: Path, res: int, precision: str, out: Path):
-    """``run_lb`` with ``grid_precision``; its first prototype's in-memory result (run_lb returns the report only)."""
+def bake(scene: Path, res: int, precision: str, out: Path, extent: str = "lattice"):
+    """``run_lb`` with ``grid_precision`` and ``base_extent``; its first prototype's in-memory result (run_lb returns
+    the report only)."""
     from foliage_tools.lighting.optics import parse_leaf_optics
     from foliage_tools.pipeline import lb as plb
 
@@ -58,7 +60,7 @@ def bake(scene: Path, res: int, precision: str, out: Path):
     plb.bake_lb = keep
     try:
         plb.run_lb(scene, out, plb.LBBakeParams(optics=parse_leaf_optics(None), resolution=res, bases="all", gather=0,
-                                                 grid_precision=precision))
+                                                 grid_precision=precision, base_extent=extent))
     finally:
         plb.bake_lb = inner
     return kept[0]
@@ -78,7 +80,33 @@ def read_total(vdb: Path, grid) -> np.ndarray:
     return out
 
 
+def haar_variants(ref: np.ndarray, thresholds, d: Path):
+    """(name, reconstruction, bytes) of steele2010 4.2's Haar compression at each threshold (module docstring)."""
+    import pywt
+
+    from foliage_tools.scene.vdb import Grid, write_vdb
+
+    shape = np.asarray(ref.shape[:3])
+    pad = [(0, int(p)) for p in (-shape) % 4] + [(0, 0), (0, 0)]
+    padded = np.pad(ref, pad)
+    for thr in thresholds:
+        coefs, recon = np.zeros_like(padded), np.zeros_like(padded)
+        for k in range(padded.shape[3]):
+            top = float(np.abs(padded[..., k, :]).max())
+            for c in range(3):
+                arr, slices = pywt.coeffs_to_array(pywt.wavedecn(padded[..., k, c], "haar", level=2, mode="periodization"))
+                arr[np.abs(arr) < thr * top] = 0.0
+                coefs[..., k, c] = arr
+                recon[..., k, c] = pywt.waverecn(pywt.array_to_coeffs(arr, slices, output_format="wavedecn"), "haar",
+                                                 mode="periodization")
+        path = d / f"haar{thr:g}.vdb"
+        write_vdb(path, [Grid(n, coefs[..., k, :], (0.0, 0.0, 0.0), 1.0, half=True) for k, n in enumerate(GRIDS)])
+        kept = np.count_nonzero(coefs) / coefs.size
+        yield f"haar {thr:g} ({kept:.0%} kept)", recon[: shape[0], : shape[1], : shape[2]], path.stat().st_size
+
+
 def main(argv=None) -> int:
+    from foliage_tools.geometry.voxelize import stencil_mask
     from foliage_tools.lighting import lb
     from foliage_tools.pipeline.lb import sample_trilinear
     from foliage_tools.pipeline.report import Silent
@@ -87,36 +115,40 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--resolution", type=int, default=64)
     ap.add_argument("--scene", type=Path, default=REPO / "examples" / "tree_small.usda")
+    ap.add_argument("--haar", action="store_true", help="also steele2010 4.2's Haar compression (needs PyWavelets)")
     args = ap.parse_args(argv)
     print(f"bench_lb_grid_precision: {args.scene.name}, lb --bases all --resolution {args.resolution} --gather 0")
-    with tempfile.TemporaryDirectory() as d:
-        files = {p: Path(d) / f"{p}.lb.vdb" for p in ("float", "half")}
-        bakes = {p: bake(args.scene, args.resolution, p, files[p].with_suffix(".usda")) for p in files}
-        b = bakes["half"]
-        size = {p: files[p].stat().st_size for p in files}
-        ref, half = read_total(files["float"], b.grid), read_total(files["half"], b.grid)
-    same = np.array_equal(ref, b.total.astype(np.float32))
-    print(f"   float grids read back == the half run's in-memory fields: {same}")
-    print(f"   .vdb: float {size['float'] / 1e6:.1f} MB, half {size['half'] / 1e6:.1f} MB, ratio {size['float'] / size['half']:.2f}")
-    diff, top = (half - ref).reshape(-1, len(GRIDS), 3), np.abs(ref).reshape(-1, len(GRIDS), 3).max(0)
-    rms = np.sqrt((diff**2).mean(0)) / top
-    worst = np.abs(diff).max(0) / top
-    print(f"   per grid (19 x RGB), relative to the grid's max: RMS median {np.median(rms):.2e}, worst {rms.max():.2e}; "
-          f"largest node error {worst.max():.2e}")
+    variants = [("float", "lattice"), ("half", "lattice"), ("float", "leaves"), ("half", "leaves")]
     _, scene, sun = begin_bake("lb", args.scene, None, None, Silent())
-    leaves = scene.prototypes[b.index].leaves.centers
+    with tempfile.TemporaryDirectory() as d:
+        files = {v: Path(d) / f"{v[0]}-{v[1]}.lb.vdb" for v in variants}
+        bakes = {v: bake(args.scene, args.resolution, v[0], files[v].with_suffix(".usda"), v[1]) for v in variants}
+        b = bakes[("half", "leaves")]
+        read = {v: (read_total(files[v], b.grid), files[v].stat().st_size) for v in variants}
+        ref, ref_size = read[("float", "lattice")]
+        print(f"   float lattice grids read back == the in-memory fields: {np.array_equal(ref, b.total.astype(np.float32))}")
+        proto = scene.prototypes[b.index]
+        leaves = proto.leaves.centers
+        mask = stencil_mask(b.grid.shape, b.grid, np.concatenate([proto.triangles(leaves=True).reshape(-1, 3), leaves]))
+        print(f"   nodes the relighting reads: {mask.mean():.1%} of the {'x'.join(map(str, b.grid.shape))} lattice")
+        rows = [(f"{p} {e}", *read[(p, e)]) for p, e in variants]
+        if args.haar:
+            rows += list(haar_variants(ref, (1e-3, 3e-3, 1e-2, 3e-2), Path(d)))
     suns = [("scene", sun_in_prototype(scene, b.index, sun, []))]  # the baked sun, in the prototype's frame
     for az, el in EXTRA_SUNS:
         a, e = np.radians(az), np.radians(el)
         suns.append((f"{az}/{el}", np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])))
-    errs = []
-    for name, direction in suns:
-        un = lb.relight(b.unscattered, direction)
-        r = np.maximum(sample_trilinear(lb.scattered_leaf_irradiance(lb.relight(ref, direction), un), b.grid, leaves), 0.0)
-        x = np.maximum(sample_trilinear(lb.scattered_leaf_irradiance(lb.relight(half, direction), un), b.grid, leaves), 0.0)
-        errs.append((name, *leaf_errors(x, r)))
-        print(f"   sun {name:>8}: per-leaf E_scattered rel. RMS {errs[-1][1]:.2e}, max {errs[-1][2]:.2e}")
-    print(f"   worst of the {len(errs)} suns: rel. RMS {max(e[1] for e in errs):.2e}, max leaf {max(e[2] for e in errs):.2e}")
+    relit = [np.maximum(sample_trilinear(lb.scattered_leaf_irradiance(lb.relight(ref, s), lb.relight(b.unscattered, s)),
+                                         b.grid, leaves), 0.0) for _, s in suns]
+    top = np.abs(ref).reshape(-1, len(GRIDS), 3).max(0)
+    print("   | storage | MB | ratio | grid RMS / max (median, worst) | largest node error / max | per-leaf rel. RMS, worst sun | worst leaf |")
+    for name, values, size in rows:
+        diff = (values - ref)[mask].reshape(-1, len(GRIDS), 3)
+        rms, worst = np.sqrt((diff**2).mean(0)) / top, np.abs(diff).max(0) / top
+        errs = [leaf_errors(np.maximum(sample_trilinear(lb.scattered_leaf_irradiance(lb.relight(values, s), lb.relight(b.unscattered, s)),
+                                                        b.grid, leaves), 0.0), r) for (_, s), r in zip(suns, relit)]
+        print(f"   | {name} | {size / 1e6:.2f} | {ref_size / size:.2f} | {np.median(rms):.2e}, {rms.max():.2e} | {worst.max():.2e} "
+              f"| {max(e[0] for e in errs):.2e} | {max(e[1] for e in errs):.2e} |")
     print(f"load average {os.getloadavg()[0]:.2f}")
     return 0
 

@@ -12,6 +12,10 @@ DEFAULT_RESOLUTION = 64
 #: How ``foliage lb`` stores its grids on disk (``--grid-precision``, of lb and bake): ``float`` (float32) or
 #: ``half`` (OpenVDB's saveFloatAsHalf, ``scene.vdb.Grid.half``: half the file, each value within 2^-11; README "LB storage").
 GRID_PRECISIONS = ("float", "half")
+#: Where ``foliage lb --bases all`` stores its relighting grids (``--base-extent``): ``leaves``, only the nodes
+#: the relighting reads (the trilinear stencils of the leaves' corners and centres; steele2010 sec. 4.2 "we do not
+#: store data that will not be accessed"), or ``lattice``, every node. README "LB storage".
+BASE_EXTENTS = ("leaves", "lattice")
 
 
 @dataclass(frozen=True)

@@ -174,6 +174,30 @@ class GridSpec:
         return np.asarray(self.origin) + (idx + 0.5) * self.voxel_size
 
 
+def trilinear_stencil(shape, grid: GridSpec, points) -> tuple[np.ndarray, np.ndarray]:
+    """Where trilinear interpolation of a node field (values at voxel centres) on ``shape`` reads at ``points``.
+
+    Returns the (P, 3) lower corner node of each point's 2 x 2 x 2 stencil and its (P, 3) weights toward the upper
+    nodes. Points outside the node lattice take the nearest boundary nodes (the stencil clamped to the lattice).
+    """
+    n = np.asarray(shape[:3], dtype=np.int64)
+    x = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - np.asarray(grid.origin)) / grid.voxel_size - 0.5
+    x = np.clip(x, 0.0, n - 1)
+    i0 = np.minimum(np.floor(x).astype(np.int64), n - 2).clip(0)
+    return i0, x - i0
+
+
+def stencil_mask(shape, grid: GridSpec, points) -> np.ndarray:
+    """(nx, ny, nz) bool: the nodes trilinear interpolation at ``points`` reads (``trilinear_stencil``)."""
+    n = np.asarray(shape[:3], dtype=np.int64)
+    i0, _ = trilinear_stencil(shape, grid, points)
+    mask = np.zeros(tuple(int(v) for v in n), dtype=bool)
+    for d in np.ndindex(2, 2, 2):
+        ijk = np.minimum(i0 + np.asarray(d), n - 1)
+        mask[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
+    return mask
+
+
 def grid_for_bounds(lo, hi, *, voxel_size=None, resolution=None, margin_voxels=1) -> GridSpec:
     """Grid covering an axis-aligned box plus a margin of empty voxels.
 

@@ -40,14 +40,14 @@ import numpy as np
 from foliage_tools import __version__
 from foliage_tools.errors import UsageError
 from foliage_tools.geometry.sun import Sun
-from foliage_tools.geometry.voxelize import GridSpec
+from foliage_tools.geometry.voxelize import GridSpec, stencil_mask, trilinear_stencil
 from scipy import ndimage
 
 from foliage_tools.lighting import lb, single_scatter
 from foliage_tools.lighting.collision import LATTICES, PHASES, Medium, brown, density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.lighting.storage import STORAGES
-from foliage_tools.params import GRID_PRECISIONS, DensityParams
+from foliage_tools.params import BASE_EXTENTS, GRID_PRECISIONS, DensityParams
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path
 from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
@@ -100,6 +100,11 @@ class LBBakeParams:
     """``--grid-precision``: the LB grids (lbSun, or lbAmbient and lbBase01..18) on disk as ``float`` (float32) or
     ``half`` (binary16 through OpenVDB's saveFloatAsHalf: half the file, each value within 2^-11 relative; read back
     as float32). Only the disk copy: the per-leaf primvars are computed from the float32 fields either way."""
+    base_extent: str = "leaves"
+    """``--base-extent`` of a ``bases="all"`` bake: its lbAmbient and lbBase01..18 stored at the nodes the
+    relighting reads (``leaves``: the trilinear stencils of every leaf's corners and centre, sparse in the
+    ``.vdb``, the lattice's shape and origin in each grid's metadata for ``scene.vdb.on_lattice``) or at every
+    node (``lattice``). What the relighting reads is the same either way (``BASE_EXTENTS``)."""
     direct: DirectChoice = DirectChoice()
     """``--direct``: what ``primvars:foliage:lb:direct`` holds (exact shadow rays by default, or the lattice's own)."""
     lattice: str = "ordinates"
@@ -145,6 +150,8 @@ class LBBakeParams:
             raise UsageError(f"--solver must be one of {', '.join(lb.SOLVERS)}, got {self.solver!r}.")
         if self.storage not in STORAGES:
             raise UsageError(f"--storage must be one of {', '.join(STORAGES)}, got {self.storage!r}.")
+        if self.base_extent not in BASE_EXTENTS:
+            raise UsageError(f"--base-extent must be one of {', '.join(BASE_EXTENTS)}, got {self.base_extent!r}.")
         if self.grid_precision not in GRID_PRECISIONS:
             raise UsageError(f"--grid-precision must be one of {', '.join(GRID_PRECISIONS)}, got {self.grid_precision!r}.")
         if self.storage == "fp16" and self.solver == "bicgstab":
@@ -165,11 +172,8 @@ def sample_trilinear(field: np.ndarray, grid: GridSpec, points: np.ndarray) -> n
     Points outside the node lattice take the nearest boundary node's value.
     """
     f = np.asarray(field)
-    x = (np.asarray(points, dtype=np.float64) - np.asarray(grid.origin)) / grid.voxel_size - 0.5
     shape = np.asarray(f.shape[:3])
-    x = np.clip(x, 0.0, shape - 1)
-    i0 = np.minimum(np.floor(x).astype(np.int64), shape - 2).clip(0)
-    w = x - i0
+    i0, w = trilinear_stencil(f.shape, grid, points)
     out = 0.0
     for dx in (0, 1):
         for dy in (0, 1):
@@ -180,6 +184,24 @@ def sample_trilinear(field: np.ndarray, grid: GridSpec, points: np.ndarray) -> n
                 wt = (w[:, 0] if dx else 1 - w[:, 0]) * (w[:, 1] if dy else 1 - w[:, 1]) * (w[:, 2] if dz else 1 - w[:, 2])
                 out = out + f[ix, iy, iz] * wt.reshape((-1,) + (1,) * (f.ndim - 3))
     return np.asarray(out)
+
+
+def base_fields(total: np.ndarray, grid: GridSpec, proto, extent: str) -> tuple[np.ndarray, dict, float]:
+    """(nx, ny, nz, K, C) float32 relighting grids to write, their extra grid metadata and the share of the lattice's
+    nodes they keep (``LBBakeParams.base_extent``).
+
+    ``leaves``: zero (so inactive, not stored, in the sparse ``.vdb``) away from the nodes the relighting reads: the
+    trilinear stencils of every leaf triangle's corners (what ``pipeline.preview.load_lb_bases`` samples) and every
+    leaf's centre (the per-leaf relighting), with the lattice's shape and origin recorded so a reader can put the
+    grid back on it (``scene.vdb.on_lattice``)."""
+    fields = total.astype(np.float32)
+    if extent == "lattice":
+        return fields, {}, 1.0
+    points = np.concatenate([proto.triangles(leaves=True).reshape(-1, 3), proto.leaves.centers])
+    keep = stencil_mask(total.shape, grid, points)
+    fields[~keep] = 0.0
+    return fields, {"foliage:latticeShape": tuple(int(n) for n in grid.shape),
+                    "foliage:latticeOrigin": tuple(float(v) for v in grid.origin)}, float(keep.mean())
 
 
 @dataclass(frozen=True)
@@ -320,11 +342,13 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         g = bake.grid
         meta = {"units": "photon energy density (sun irradiance 1 = 1)", "metersPerUnit": float(scene.meters_per_unit)}
         half = params.grid_precision == "half"  # the LB grids only: the density and earlier grids carried keep theirs
+        kept = None
         if params.bases == "sun":
             grids = [Grid("lbSun", bake.sun_total.astype(np.float32), tuple(g.origin), g.voxel_size, meta, half=half)]
         else:
-            grids = [Grid("lbAmbient", bake.total[..., 0, :].astype(np.float32), tuple(g.origin), g.voxel_size, meta, half=half)]
-            grids += [Grid(f"lbBase{k:02d}", bake.total[..., k, :].astype(np.float32), tuple(g.origin), g.voxel_size, meta, half=half)
+            fields, base_meta, kept = base_fields(bake.total, g, proto, params.base_extent)
+            grids = [Grid("lbAmbient", fields[..., 0, :], tuple(g.origin), g.voxel_size, {**meta, **base_meta}, half=half)]
+            grids += [Grid(f"lbBase{k:02d}", fields[..., k, :], tuple(g.origin), g.voxel_size, {**meta, **base_meta}, half=half)
                       for k in range(1, 19)]
         r = bake.result
         attrs = {
@@ -343,6 +367,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "foliage:lb:g": tuple(float(v) for v in bake.medium.g),
             "foliage:lb:absorptionScale": float(params.absorption_scale),
             "foliage:lb:gridPrecision": params.grid_precision,
+            **({"foliage:lb:baseExtent": params.base_extent} if params.bases == "all" else {}),
             "foliage:gatherRays": int(rays),
         }
         vol = volume_path(scene, proto)
@@ -368,6 +393,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
             "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source, "storage": params.storage,
             "grid_precision": params.grid_precision,
+            **({"base_extent": params.base_extent, "base_nodes_kept": kept} if kept is not None else {}),
             "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": e_scattered.mean(axis=0).tolist(),
             "e_scattered_lattice_mean": bake.e_scattered.mean(axis=0).tolist(),
             "e_direct_volume_mean": bake.e_direct.mean(axis=0).tolist(),

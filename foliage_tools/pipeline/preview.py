@@ -290,7 +290,7 @@ def load_lb_bases(path: Path, scene: Scene, warnings: list[str]) -> dict[str, np
     from foliage_tools.pipeline.volumes import volume_path
     from foliage_tools.pipeline.lb import sample_trilinear
     from foliage_tools.scene.primvars import read_volume
-    from foliage_tools.scene.vdb import read_grid
+    from foliage_tools.scene.vdb import on_lattice, read_grid
 
     out: dict[str, np.ndarray] = {}
     for proto in scene.prototypes:
@@ -308,7 +308,10 @@ def load_lb_bases(path: Path, scene: Scene, warnings: list[str]) -> dict[str, np
             warnings.append(f"{path}: <{vol}> has LB bases but no foliage:lb:sigmaA/sigmaS/g (an older bake): the lb method "
                             "draws the baked sun only; re-run `foliage lb --bases all` to relight.")
             continue
-        grids = [read_grid(Path(f), f"lbBase{k:02d}") for k, f in enumerate(files, start=1)]
+        try:  # a --base-extent leaves bake stores the bases where they are read: put them back on their lattice
+            grids = [on_lattice(read_grid(Path(f), f"lbBase{k:02d}")) for k, f in enumerate(files, start=1)]
+        except ValueError as exc:
+            raise InputError(f"@{path}@: the lbBase grids of <{vol}>: {exc}; re-run `foliage lb --bases all`.") from None
         g0 = grids[0]
         if any(g.values.shape != g0.values.shape or g.origin != g0.origin or g.voxel_size != g0.voxel_size for g in grids):
             raise InputError(f"@{path}@: the lbBase grids of <{vol}> are not on one grid; re-run `foliage lb --bases all`.")

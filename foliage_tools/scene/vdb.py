@@ -8,7 +8,7 @@ background (0).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -148,6 +148,25 @@ def grid_names(path: Path) -> list[str]:
         return [g.name for g in _vdb.readAllGridMetadata(str(path))]
     except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
         raise InputError(f"@{path}@: not a readable OpenVDB file ({exc}).") from None
+
+
+def on_lattice(grid: Grid) -> Grid:
+    """``grid`` placed back on the lattice it was baked on, zero where nothing was stored, when its metadata records
+    one (``foliage:latticeShape`` / ``foliage:latticeOrigin``: ``foliage lb --base-extent leaves``); else unchanged.
+
+    :func:`read_grid` returns a grid over its active voxels, which for a sparse grid is smaller than its lattice.
+    """
+    shape, origin = grid.metadata.get("foliage:latticeShape"), grid.metadata.get("foliage:latticeOrigin")
+    if shape is None or origin is None:
+        return grid
+    shape = tuple(int(n) for n in shape)
+    offset = np.rint((np.asarray(grid.origin) - np.asarray(origin, dtype=np.float64)) / grid.voxel_size).astype(np.int64)
+    n = np.asarray(grid.values.shape[:3], dtype=np.int64)
+    if np.any(offset < 0) or np.any(offset + n > np.asarray(shape)):
+        raise ValueError(f"grid {grid.name!r} reaches outside the lattice its metadata records ({shape} at {tuple(origin)})")
+    values = np.zeros(shape + grid.values.shape[3:], dtype=np.float32)
+    values[tuple(slice(int(a), int(a + b)) for a, b in zip(offset, n))] = grid.values
+    return replace(grid, values=values, origin=tuple(float(v) for v in origin))
 
 
 def read_grid(path: Path, name: str) -> Grid:

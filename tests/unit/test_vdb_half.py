@@ -72,3 +72,29 @@ def test_half_refuses_values_beyond_the_largest_half(tmp_path):
     x = np.full((2, 2, 2), 2 * HALF_MAX, np.float32)
     with pytest.raises(ValueError, match="largest half float"):
         write_vdb(tmp_path / "h.vdb", [Grid("g", x, (0.0, 0.0, 0.0), 0.1, half=True)])
+
+
+def test_a_sparse_grid_reads_back_over_its_active_voxels_and_on_lattice_puts_it_back(tmp_path, rng):
+    """``lb --base-extent leaves`` writes zeros away from the leaves: OpenVDB stores only the rest (its active voxels),
+    read_grid returns their bounding box, and on_lattice restores the baked lattice from the grid's metadata, equal to
+    the array written (half: to its precision); a grid without that metadata is returned as it is."""
+    from foliage_tools.scene.vdb import on_lattice
+
+    shape, origin, h = (20, 16, 12), (-2.0, 1.0, 0.5), 0.1
+    values = np.zeros(shape + (3,), np.float32)
+    values[5:9, 3:12, 2:7] = rng.uniform(0.1, 1.0, size=(4, 9, 5, 3))
+    meta = {"foliage:latticeShape": shape, "foliage:latticeOrigin": origin}
+    for half in (False, True):
+        path = tmp_path / f"sparse{half}.vdb"
+        write_vdb(path, [Grid("lbBase01", values, origin, h, meta, half=half)])
+        got = read_grid(path, "lbBase01")
+        assert got.values.shape == (4, 9, 5, 3)  # only the stored block
+        full = on_lattice(got)
+        assert full.values.shape == values.shape and np.allclose(full.origin, origin, atol=1e-12)
+        np.testing.assert_allclose(full.values, values, rtol=2.0 ** -11 if half else 0, atol=0)
+    plain = Grid("density", values[..., 0], origin, h)
+    write_vdb(tmp_path / "plain.vdb", [plain])
+    back = read_grid(tmp_path / "plain.vdb", "density")
+    assert on_lattice(back) is back
+    with pytest.raises(ValueError, match="outside the lattice"):
+        on_lattice(Grid("lbBase01", values, (origin[0] + 5 * h, *origin[1:]), h, meta))

@@ -515,3 +515,29 @@ def test_mark_wood_fraction():
         mark_wood_fraction(np.array([np.nan]), np.array([1.0]))
     with pytest.raises(ValueError, match=">= 0"):
         mark_wood_fraction(np.array([1.0]), np.array([-1.0]))
+
+
+# --------------------------------------------------------------------------
+# the nodes trilinear interpolation reads (lb --base-extent leaves)
+# --------------------------------------------------------------------------
+
+
+def test_stencil_mask_holds_every_node_trilinear_interpolation_reads(rng):
+    """Interpolating a field zeroed outside the mask gives the same values to the bit at the points, inside the
+    lattice, on its faces and outside it (clamped); and the mask is no larger than 8 nodes a point."""
+    from foliage_tools.geometry.voxelize import stencil_mask
+    from foliage_tools.pipeline.lb import sample_trilinear
+
+    grid = GridSpec(origin=(-1.0, 0.5, 2.0), voxel_size=0.25, shape=(12, 9, 7))
+    field = rng.uniform(0.5, 2.0, size=grid.shape + (3,))
+    lo, hi = np.asarray(grid.origin), np.asarray(grid.origin) + 0.25 * np.asarray(grid.shape)
+    inside = rng.uniform(lo, hi, size=(40, 3))
+    faces = np.array([lo, hi, lo + 0.125, hi - 0.125, [lo[0], hi[1], lo[2]]])  # boundary nodes' centres and corners
+    outside = np.array([lo - 1.0, hi + 3.0, [lo[0] - 0.5, (lo[1] + hi[1]) / 2, hi[2] + 0.3]])
+    for pts in (inside, faces, outside, inside[:1]):
+        mask = stencil_mask(grid.shape, grid, pts)
+        assert mask.shape == grid.shape and 1 <= mask.sum() <= 8 * len(pts)
+        kept = np.where(mask[..., None], field, 0.0)
+        assert np.array_equal(sample_trilinear(kept, grid, pts), sample_trilinear(field, grid, pts))
+    # a point at a node's centre away from the faces still has a full 2 x 2 x 2 stencil (weight 0 on the upper nodes)
+    assert stencil_mask(grid.shape, grid, grid.index_to_world(np.array([[3, 4, 2]]))).sum() == 8
