@@ -111,9 +111,8 @@ shifted copy of that run into the target. So the bases are innermost, as
 asked, but with z (and y % G) between them and the channel. Why: with the
 right-hand sides alone innermost, ``(nx, ny, nz, 18, R)``, the vectors are R
 long (3 for the sun in RGB: no SIMD at all) and streaming moves 18 short runs
-per node; on this machine (48^3 dense sphere, same process, best of 7) the
-best such kernel ran at 38 / 50 node x rhs MLUPS for R = 3 / 57 against 61 /
-101 for rows of nz K values. Memory: 72 C K bytes per node and field (64^3
+per node, which measured 1.6-2x slower (README "Speed"; ``benchmarks/bench_lb_issue.py``
+times the kernels). Memory: 72 C K bytes per node and field (64^3
 with 19 bases x RGB: 1.08 GB); plain iteration holds 2 fields, BiCGSTAB 6.
 
 Storage (``LBParams.storage``, ``lighting.storage``): the state is float32
@@ -133,11 +132,9 @@ the exact steady state is bounded by 2^-11 (I - T)^-1 |f| componentwise
 Occupied nodes collide by the parity split of ``_parity_blocks``: two (9 x 9)
 @ (9 x n) products per channel and material on rho (f_2p +- f_2p+1), written
 out three output rows per pass (``_pair_product``: their coefficients stay in
-registers; per core ~140 GFLOP/s against ~37 for BLAS gemm through ``np.dot``
-on such thin products), and the post-collision values go straight into their
-target slots while streaming (never stored after collision): 1.8-1.9x the
-BLAS version of the sweep at 64^3 / 128^3 with 57 rhs, 2.5x with brown nodes
-(same process, alternating). Empty parts are copied.
+registers, which outruns BLAS gemm through ``np.dot`` on such thin products),
+and the post-collision values go straight into their target slots while
+streaming (never stored after collision). Empty parts are copied.
 
 * Long rows (nz K >= ``_ROW_KERNEL_MIN`` values: many right-hand sides) are
   blocks of one row (G = 1) and ``_sweep_rows`` sweeps them row by row; an
@@ -148,12 +145,8 @@ BLAS version of the sweep at 64^3 / 128^3 with 57 rhs, 2.5x with brown nodes
   ``_sweep_blocks`` collides and streams whole blocks: a y- and z-shift is one
   offset of the flat run, the row that crosses into a neighbouring block goes
   there, and the few slots a z-shift wraps into (inflow slots on the z faces
-  of the next row) are saved and put back. Against sweeping such rows one by
-  one (the previous kernel; same process, alternating, this 2-core EPYC host)
-  at 1-3 rhs: 1.7-2.3x on a uniformly occupied 64^3 / 128^3 grid, 1.3-1.8x
-  on the dense sphere, 1.25-1.45x on the example tree. Per row, its loops ran over
-  only 64-128 values; a grouped version that kept them per row but collided
-  16 rows at once gained 1.17x at 1 rhs and nothing at 3.
+  of the next row) are saved and put back. Sweeping such rows one by one
+  runs loops over only 64-128 values, which measured slower at 1-3 rhs.
 
 ``_reference_step`` is the plain numpy version of the update on the paper's 19
 directions that both kernels are tested against.
