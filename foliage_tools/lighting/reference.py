@@ -155,7 +155,7 @@ import math
 import os
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import cast
@@ -207,9 +207,9 @@ class Placements:
     not the instances. Each instance's own means are tallied as well (:attr:`ReferenceResult.instance_direct`).
     """
 
-    triangles: tuple
+    triangles: Sequence[np.ndarray]
     """Per prototype, (T_p, 3, 3) float64 vertices in the prototype's frame."""
-    leaf_of_triangle: tuple
+    leaf_of_triangle: Sequence[np.ndarray]
     """Per prototype, (T_p,) int leaf index of each triangle within the prototype, -1 for wood."""
     transforms: np.ndarray
     """(N, 4, 4) world-from-prototype matrices, column-vector convention."""
