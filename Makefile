@@ -26,6 +26,7 @@ demo: setup
 # pyflakes, bugbear and no print() in the package ([tool.ruff] in pyproject.toml); part of `make test`
 lint: setup
 	$(PY) -m ruff check foliage_tools cli tests benchmarks examples scripts
+	$(PY) -m mypy
 
 # the default suite in TEST_WORKERS processes, whole test files each (module fixtures are built once)
 TEST_WORKERS ?= 2

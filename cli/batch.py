@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from foliage_tools.cli import console
@@ -27,9 +27,9 @@ class _Bar:
 
     def __init__(self, enabled: bool) -> None:
         self.enabled = enabled and console.stderr.is_terminal
-        self._progress = None
-        self._task = None
-        self._last = None
+        self._progress: Progress | None = None
+        self._task: TaskID | None = None
+        self._last: str | None = None
 
     def __enter__(self) -> "_Bar":
         if self.enabled:

@@ -206,10 +206,11 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
         raise click.BadParameter(f"@{value}@ is not valid TOML ({exc}).", ctx=ctx, param_hint="--config") from None
     known = _long_names(ctx.command)
     root = ctx.find_root().command
-    others = set()
+    others: set[str] = set()
     for cmd in getattr(root, "commands", {}).values():
         others.update(_long_names(cmd))
-    table = data.get(ctx.info_name) if isinstance(data.get(ctx.info_name), dict) else {}
+    own = data.get(ctx.info_name) if ctx.info_name is not None else None
+    table = own if isinstance(own, dict) else {}
     entries = [(k, v, False) for k, v in data.items() if not isinstance(v, dict)] + [(k, v, True) for k, v in table.items()]
     defaults = {}
     for key, val, in_table in entries:

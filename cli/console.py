@@ -6,11 +6,12 @@ import json
 import logging
 import sys
 import time
+from typing import Any
 
 from rich.console import Console
 from rich.markup import escape
 from rich.measure import Measurement
-from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, Progress, SpinnerColumn, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 stderr = Console(stderr=True)
@@ -29,9 +30,9 @@ class RichProgress:
         self.enabled = enabled and stderr.is_terminal
         self.plain = enabled and not stderr.is_terminal
         self._progress: Progress | None = None
-        self._task = None
+        self._task: TaskID | None = None
         self._start = time.monotonic()
-        self._line = None  # plain mode: [message, total, done, time of the last line]
+        self._line: list[Any] | None = None  # plain mode: [message, total, done, time of the last line]
 
     def __enter__(self) -> "RichProgress":
         if self.enabled:
@@ -106,7 +107,8 @@ def print_table(table: Table, *, console: Console | None = None) -> None:
         target.print(table)
         return
     # Console.print(width=) is capped at the console's own width: a console of the table's width on the same file
-    Console(file=target.file, width=natural, color_system=target.color_system, no_color=target.no_color).print(table)
+    Console(file=target.file, width=natural, color_system=target.color_system,  # type: ignore[arg-type]  # rich types the property str, the argument its names
+            no_color=target.no_color).print(table)
 
 
 def print_json(obj: dict) -> None:

@@ -119,7 +119,7 @@ def leaf_components(points: np.ndarray, triangles: np.ndarray) -> LeafComponents
     av = avec[good]
     cen = points[tri].mean(axis=1)
     areas = np.bincount(leaf_of_good, weights=a, minlength=n_leaves)
-    centers = np.stack([np.bincount(leaf_of_good, weights=a * cen[:, i], minlength=n_leaves) for i in range(3)], axis=1)
+    centers: np.ndarray = np.stack([np.bincount(leaf_of_good, weights=a * cen[:, i], minlength=n_leaves) for i in range(3)], axis=1)
     centers /= areas[:, None]
     # reference normal per leaf: that of its largest triangle
     by_leaf_then_area = np.lexsort((-a, leaf_of_good))

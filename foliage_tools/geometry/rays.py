@@ -230,8 +230,10 @@ class RayScene:
         if chunk < 1 or workers < 1:
             raise ValueError(f"chunk and workers must be >= 1, got {chunk} and {workers}")
 
+        scene = self._scene  # not None (checked above), for the closure
+
         def run(a: int, b: int) -> None:
-            res = self._scene.run(
+            res = scene.run(
                 np.ascontiguousarray(o[a:b], dtype=np.float32),
                 np.ascontiguousarray(d[a:b], dtype=np.float32),
                 query="OCCLUDED",
@@ -243,6 +245,7 @@ class RayScene:
 
     def _run(self, o, d, far, tri_out, t_out, refine) -> None:
         """Trace one chunk into the given output slices."""
+        assert self._scene is not None  # intersect calls this only for a scene with triangles
         dists = np.minimum(far, float(_EMBREE_FAR)).astype(np.float32)
         res = self._scene.run(
             np.ascontiguousarray(o, dtype=np.float32),

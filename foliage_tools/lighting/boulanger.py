@@ -41,6 +41,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -90,7 +91,7 @@ def _rgb(value, name: str, *, allow_none: bool = False) -> tuple[float, float, f
         raise ValueError(f"{name} must be a number or an RGB triple, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise ValueError(f"{name} must be finite and >= 0, got {arr.tolist()}")
-    return tuple(float(v) for v in arr)
+    return cast("tuple[float, float, float]", tuple(float(v) for v in arr))  # shape (3,), checked above
 
 
 @dataclass(frozen=True)
@@ -457,6 +458,7 @@ def solve(normals, smax, tau, *, up=(0.0, 0.0, 1.0), params: BoulangerParams, sc
     # p serves the higher orders only: the thesis' one bounce (all_orders False) has none, so it reports none
     p_recollide = recollision_probability(attenuation) if all_orders else None
     if all_orders:  # ω = ρ̄ / 2, the albedo of a face averaged over the two (eq. (5.19))
+        assert p_recollide is not None  # computed just above when all_orders
         orders = higher_orders(optics.sum(axis=0) / 2.0, p_recollide)
         s_front, s_back = s_front * orders, s_back * orders
     sky = np.asarray(params.sky_radiance, dtype=float)

@@ -154,6 +154,7 @@ def solve(
     k = int(params.samples_per_leaf)
     half = k // 2
     workers = int(params.workers) if params.workers is not None else max(1, os.cpu_count() or 1)
+    scene: PeriodicRayScene | RayScene
     if inputs.period is not None:
         scene = PeriodicRayScene(tri, period=inputs.period, origin=inputs.cell_origin)
     else:

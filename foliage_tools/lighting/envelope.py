@@ -499,6 +499,7 @@ def solve(centres, normals, areas, *, up=(0.0, 0.0, 1.0), params: EnvelopeParams
 def _estimate_tau(depth: np.ndarray, far: np.ndarray | None, s1: np.ndarray, estimator: str) -> float:
     """τ from per-bin optical depths D, farthest-leaf distances and S1 = Σ o r (see ``tau_estimator``)."""
     if estimator == "farthest":
+        assert far is not None  # every "farthest" call passes the farthest-leaf distances
         used = far > 0.0
         if not np.any(used):
             return 0.0

@@ -193,6 +193,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Literal, overload
 
 import numpy as np
 from numba import njit, prange
@@ -443,6 +444,7 @@ class LBProblem:
         for name, med, sel in (("green", self.medium, self._green()), ("brown", self.brown_medium, self.brown_mask)):
             if sel is None or not sel.any():
                 continue
+            assert med is not None  # brown_medium: set by __post_init__ before this runs
             rho = np.where(sel, self.density, 0.0)
             flat = int(np.argmax(rho))
             rmax = float(rho.flat[flat])
@@ -476,6 +478,7 @@ class LBProblem:
 
     def unscattered(self) -> LBProblem:
         """The same problem for never-scattered light (sigma_s = 0, sigma_a = sigma_t): gives u_unscattered."""
+        assert self.brown_medium is not None  # __post_init__ defaults it to brown(medium)
         return LBProblem(self.density, self.medium.unscattered(), self.boundaries, self.brown_mask,
                          self.brown_medium.unscattered(), self.lattice)
 
@@ -1463,6 +1466,7 @@ class _Operator:
         media = [problem.medium]
         if problem.brown_mask is not None and problem.brown_mask.any():
             self.mat[problem.brown_mask] = 1
+            assert problem.brown_medium is not None  # LBProblem.__post_init__ defaults it to brown(medium)
             media.append(problem.brown_medium)
         self.media = tuple(media)
         A64 = np.stack([unit_moving_block(m, problem.lattice) for m in media])
@@ -1600,6 +1604,10 @@ class _Operator:
             _sweep_blocks(f, out, self.rho, self.rhod, self.mat, self.AE, self.AO, mode, wt, p1, p2, self.pw, self.cE, self.cO,
                           self.use_src)
 
+    @overload
+    def sweep(self, f: np.ndarray, out: np.ndarray, *, residual: Literal[True]) -> np.ndarray: ...
+    @overload
+    def sweep(self, f: np.ndarray, out: np.ndarray, *, residual: bool) -> np.ndarray | None: ...
     def sweep(self, f: np.ndarray, out: np.ndarray, *, residual: bool) -> np.ndarray | None:
         """out <- one lattice update of f (inflow slots of out untouched); per-rhs relative residual if asked."""
         p1, p2 = self._parts[0], self._parts[1]
@@ -1673,6 +1681,7 @@ def _iterate(
         if not check:
             prev_res = None
             continue
+        assert r is not None  # swept with residual=check
         res = r
         if not np.all(np.isfinite(res)):
             raise LBNumericalError(
@@ -1926,6 +1935,7 @@ def _attenuations(problem: LBProblem, dtype) -> tuple[np.ndarray, np.ndarray]:
     for rho in (problem.density, diagonal_density(problem.density) if problem.lattice == "ordinates" else problem.density):
         att = 1.0 - rho[..., None] * np.array(problem.medium.sigma_t, dtype=np.float64)  # green nodes
         if problem.brown_mask is not None:
+            assert problem.brown_medium is not None  # LBProblem.__post_init__ defaults it to brown(medium)
             att[problem.brown_mask] = 1.0 - rho[problem.brown_mask][:, None] * np.array(problem.brown_medium.sigma_t)
         out.append(np.ascontiguousarray(att, dtype=dtype))
     return out[0], out[1]
@@ -2011,6 +2021,7 @@ def beam_fields(problem: LBProblem) -> BeamFields:
     """
     nx, ny, nz = problem.shape
     K, C = len(problem.boundaries), problem.channels
+    assert problem.brown_medium is not None  # LBProblem.__post_init__ defaults it to brown(medium)
     media = [problem.medium] + ([problem.brown_medium] if problem.brown_mask is not None and problem.brown_mask.any() else [])
     mat = np.zeros(problem.shape, np.intp)
     if len(media) == 2:
@@ -2074,6 +2085,7 @@ def _reference_step(f: np.ndarray, problem: LBProblem) -> tuple[np.ndarray, np.n
     from foliage_tools.lighting.collision import step_density
 
     rho = problem.density
+    assert problem.brown_medium is not None  # LBProblem.__post_init__ defaults it to brown(medium)
     media = [problem.medium, problem.brown_medium]
     A = np.array([unit_moving_block(m, problem.lattice) for m in media])  # (2, C, 18, 18)
     mat = np.zeros(rho.shape, int) if problem.brown_mask is None else problem.brown_mask.astype(int)

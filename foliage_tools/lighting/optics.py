@@ -8,8 +8,10 @@ reflectance r and transmittance t; wood is opaque Lambertian with reflectance
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 #: Named presets. ``geist2008``: Table 1 of geist2008, from Knapp & Carter
 #: (1998): the backward-scatter column b_s is the leaf reflectance and the
@@ -42,8 +44,12 @@ class LeafOptics:
     """(3,) hemispherical reflectance of a leaf face, 0..1."""
     transmittance: np.ndarray
     """(3,) diffuse transmittance through a leaf, 0..1; r + t ≤ 1 per channel."""
-    wood_reflectance: np.ndarray = DEFAULT_WOOD_REFLECTANCE
+    wood_reflectance: np.ndarray = DEFAULT_WOOD_REFLECTANCE  # type: ignore[assignment]  # a number in, (3,) after __post_init__
     """(3,) reflectance of bark, 0..1."""
+
+    if TYPE_CHECKING:  # what the generated __init__ accepts: 1 or 3 numbers each, made (3,) arrays by __post_init__
+        def __init__(self, reflectance: ArrayLike, transmittance: ArrayLike,
+                     wood_reflectance: ArrayLike = DEFAULT_WOOD_REFLECTANCE) -> None: ...
 
     def __post_init__(self) -> None:
         r = _rgb(self.reflectance, "leaf reflectance")

@@ -360,6 +360,7 @@ class _ModeSolution:
         q_minus = eig.lam.T @ (self.src_coef * eig.parity)  # Q^m(-mu_i)
         if np.any(q_plus != 0.0) or np.any(q_minus != 0.0):
             s = np.concatenate([-q_plus / mu, q_minus / mu])
+            assert mu0 is not None  # without a beam (mu0 None) the source coefficients, so q_plus and q_minus, are 0
             z = np.linalg.solve(eig.a_sys + np.eye(2 * n) / mu0, -s)
         else:
             z = np.zeros(2 * n)

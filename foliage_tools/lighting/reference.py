@@ -155,9 +155,10 @@ import math
 import os
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from numba import njit
@@ -206,9 +207,9 @@ class Placements:
     not the instances. Each instance's own means are tallied as well (:attr:`ReferenceResult.instance_direct`).
     """
 
-    triangles: tuple
+    triangles: Sequence[np.ndarray]
     """Per prototype, (T_p, 3, 3) float64 vertices in the prototype's frame."""
-    leaf_of_triangle: tuple
+    leaf_of_triangle: Sequence[np.ndarray]
     """Per prototype, (T_p,) int leaf index of each triangle within the prototype, -1 for wood."""
     transforms: np.ndarray
     """(N, 4, 4) world-from-prototype matrices, column-vector convention."""
@@ -300,9 +301,9 @@ class ReferenceInputs:
     """Leaf reflectance / transmittance and wood reflectance (RGB)."""
     sun_direction: np.ndarray
     """(3,) direction *toward* the sun (normalised on construction)."""
-    sky_radiance: np.ndarray = (0.0, 0.0, 0.0)
+    sky_radiance: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # array-like in, ndarray after __post_init__
     """(3,) uniform radiance of the upper hemisphere about ``up``, per unit sun irradiance (sr⁻¹), ≥ 0."""
-    up: np.ndarray = (0.0, 0.0, 1.0)
+    up: np.ndarray = (0.0, 0.0, 1.0)  # type: ignore[assignment]  # array-like in, ndarray after __post_init__
     """(3,) the up direction (normalised on construction); defines the sky hemisphere."""
     period: tuple[float, float] | None = None
     """If set, (px, py): the geometry is one cell of an infinite layer repeated along x and y
@@ -920,6 +921,7 @@ class _Tracer:
         self.t2 = np.stack([np.zeros(3), opt.transmittance])
         a2 = 1.0 - self.r2 - self.t2
         self.a2 = np.where(a2 > 1e-12, a2, 0.0)
+        self.scene: InstancedRayScene | PeriodicRayScene | RayScene
         if self.placements is not None:
             pl = self.placements
             self.scene = InstancedRayScene(pl.triangles, pl.transforms, pl.prototype_of)
@@ -930,6 +932,7 @@ class _Tracer:
             self.scene = RayScene(inputs.triangles)
         self.offset = self.scene.offset_distance()
         if self.placements is None:
+            assert not isinstance(self.scene, InstancedRayScene)  # built above from the triangles when there are no placements
             self.normals = self.scene.normals
             self.leaf = inputs.leaf_of_triangle
             # per-triangle r and t: leaves (r, t), wood (ρ, 0)
@@ -1116,24 +1119,29 @@ def solve(
         raise ValueError("nothing to trace: paths and sky_paths are both 0")
     workers = int(params.workers) if params.workers is not None else max(1, os.cpu_count() or 1)
     tracer = _Tracer(inputs, params.max_events, float(params.survival_weight), int(params.split))
-    z_top = tracer.scene.z_range[1] if tracer.periodic else None
+    z_top = None
+    if tracer.periodic:
+        assert isinstance(tracer.scene, PeriodicRayScene)  # _Tracer builds one for a periodic input
+        z_top = tracer.scene.z_range[1]
     geo = _geometry(inputs, z_top, tracer.scene.bounds if inputs.placements is not None else None)
     if params.noise_target is None:
         sun_sizes = _batches(params.paths, params.batch_size)
     else:  # whole batches, so a run stopped after n of them equals a run of n x batch_size paths
-        full, rest = divmod(params.paths, params.batch_size)
-        sun_sizes = [params.batch_size] * full + ([rest] if rest else [])
+        n_full, rest = divmod(params.paths, params.batch_size)
+        sun_sizes = [params.batch_size] * n_full + ([rest] if rest else [])
         if len(sun_sizes) < 2:
             sun_sizes = _batches(params.paths, params.batch_size)
     sky_sizes = _batches(sky_paths, params.batch_size) if has_sky else []
-    sun = _SunSource(geo, inputs.sun_direction, params.paths)
+    sun: _SunSource | _PlacedSunSource | _SurfaceSunSource = _SunSource(geo, inputs.sun_direction, params.paths)
     if params.sun_sampling == "surface" and inputs.placements is not None:
+        assert isinstance(tracer.scene, InstancedRayScene)  # _Tracer's scene for placements
         sun = _PlacedSunSource(tracer.scene, inputs.placements, inputs.sun_direction, sun.power)
     elif params.sun_sampling == "surface":
         sun = _SurfaceSunSource(tracer.scene, inputs.triangles, inputs.sun_direction, sun.power)
     sky = _SkySource(geo, inputs.up, inputs.sky_radiance, sky_paths) if has_sky else None
     root_sun, root_sky = np.random.SeedSequence(params.seed).spawn(2)
     # sky batches first, so that a run stopped at its noise target has traced all of them
+    tasks: list[tuple[_SunSource | _PlacedSunSource | _SurfaceSunSource | _SkySource | None, np.random.SeedSequence, int, bool, int]]
     tasks = [(sky, s, size, True, i) for i, (s, size) in enumerate(zip(root_sky.spawn(len(sky_sizes)), sky_sizes))]
     tasks += [(sun, s, size, False, i) for i, (s, size) in enumerate(zip(root_sun.spawn(len(sun_sizes)), sun_sizes))]
     total_paths = params.paths + (sky_paths if has_sky else 0)
@@ -1158,7 +1166,8 @@ def solve(
         """The two-halves noise of the sun tallies ``categories`` summed (module docstring)."""
         n = half_paths[0] + half_paths[1]
         a, b = (sum(h.incidence.reshape(n_leaves, 4, 3)[:, c] for c in categories) / n for h in sun_h)
-        return _noise(a, b, half_paths[0], half_paths[1], area)
+        # sums of arrays (every call names a category), not sum()'s int start
+        return _noise(cast(np.ndarray, a), cast(np.ndarray, b), half_paths[0], half_paths[1], area)
 
     pool = ThreadPoolExecutor(max_workers=workers)
     pending: deque = deque()

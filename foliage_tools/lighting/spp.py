@@ -631,7 +631,7 @@ def spp_field(depth, thickness, *, albedo, forward_fraction) -> SPPField:
     flat = [np.array(x, dtype=np.float64).ravel() for x in (d, w, om, tf)]
     a = np.empty(flat[0].shape)
     b = np.empty(flat[0].shape)
-    _spp_kernel(*flat, a, b)
+    _spp_kernel(*flat, a, b)  # type: ignore[call-arg]  # numba's Dispatcher stub does not type a jitted function's arguments
     direct = np.exp(-d)
     return SPPField(direct=direct.reshape(shape), down=a.reshape(shape), up=b.reshape(shape))
 

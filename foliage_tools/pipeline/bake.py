@@ -22,6 +22,7 @@ import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from foliage_tools.errors import FoliageError, OutputError, UsageError
 from foliage_tools.lighting.optics import LeafOptics
@@ -135,6 +136,7 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
         recover(outdir, [label, *names], report.warnings)
         report.warnings += _legacy_staging(outdir)
         commit = Commit(outdir, label)
+        assert commit.staging is not None  # a new Commit's staging directory, until it commits or is discarded
     except BaseException:
         _remove_empty(created)
         raise
@@ -214,7 +216,7 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
     # trees: the sky pass alone ran past 10 minutes): far trees thinned, no sky occlusion, one sample per pixel
     placed = world_triangles(scene)
     big = traced_alone(scene, placed)
-    light = {"lod": PREVIEW_LOD, "sky_samples": 0, "samples": 1} if big else {}
+    light: dict[str, Any] = {"lod": PREVIEW_LOD, "sky_samples": 0, "samples": 1} if big else {}
     stages["preview"] = _stage(
         "preview", run_preview, lb_out, work / f"{stem}.png",
         PreviewParams(compare=("direct", "lb", "spp", "smax") if editable else ("direct",), size=(512, 512), sun=params.sun,
@@ -314,6 +316,7 @@ def _commit(path: Path, outdir: Path, commit: Commit, *, portable_input: Path | 
         raise OutputError(f"@{clash[0]}@ is a file the input @{path}@ uses; bake into another directory (inputs are never modified).")
     # the flattened input (--portable) is the input, not a bake layer: it is moved as written, with the grids
     skip = {portable_input.name} if portable_input is not None else set()
+    assert commit.staging is not None  # not committed yet: that is below
     layers = relocate_and_seal(commit.staging, outdir, [n for n in names if Path(n).suffix in (".usda", ".usdc", ".usd") and n not in skip])
     others = [n for n in names if n not in layers]
     finals = commit.commit([*others, *layers])  # grids, images and reports first; the layers bottom-up, the final one last

@@ -29,7 +29,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_INTERNAL, FoliageError, OutputError, UsageError
 from foliage_tools.pipeline.bake import BakeParams
@@ -197,7 +197,7 @@ def _bake_all(todo: list[_Plan], outroot: Path, params: BatchParams, record: dic
 
 def _entry(p: _Plan, fut, outroot: Path, attempts: int) -> dict:
     """The batch.json entry of a finished task."""
-    entry = {"input": str(p.asset.path), "key": p.key.digest, "files": p.key.files, "options": p.key.options,
+    entry: dict[str, Any] = {"input": str(p.asset.path), "key": p.key.digest, "files": p.key.files, "options": p.key.options,
              "tool": p.key.tool, "reason": p.reason, "attempts": attempts, "status": "failed", "seconds": 0.0,
              "outputs": [], "warnings": [], "error": None}
     if fut.status == "finished":
@@ -327,4 +327,5 @@ def _share_cores() -> None:
         slots = get_worker().state.nthreads
     except ValueError:
         slots = 1
-    numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS, _cores() // max(1, slots))))
+    # numba.config sets its options as module globals at import: not in its type information
+    numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS, _cores() // max(1, slots))))  # type: ignore[attr-defined]

@@ -45,7 +45,7 @@ class Key:
     """An asset's cache key and what it was made of."""
 
     digest: str
-    files: dict[str, str]
+    files: dict[str, str | None]
     """{path relative to the asset's file (absolute when outside its directory): sha256}; missing assets: None."""
     options: dict
     tool: str

@@ -75,7 +75,7 @@ def _search(directory: Path, outroot: Path) -> list[AssetSpec]:
         if p.resolve().is_relative_to(root):
             continue  # an earlier batch's outputs
         found.append(p)
-    used = set()
+    used: set[Path] = set()
     for p in found:
         used |= dependencies(p)[0] - {p.resolve()}
     assets = [AssetSpec(name=p.stem, path=p, where=f"@{p}@ (found in @{directory}@)") for p in found if p.resolve() not in used]

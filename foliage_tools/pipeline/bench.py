@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -68,6 +69,7 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
                                                      noise=params.noise), progress, flat=True)  # every leaf compared
     ref_seconds = time.perf_counter() - t0
     world, res = ref.world, ref.result
+    assert world is not None  # flat=True copies every instance
     n = int(world.offsets[-1])
     progress.step("depth and thickness of every leaf toward the sun")
     depth, thickness = depth_thickness(world, sun.direction)
@@ -84,7 +86,7 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
         ref_instances = instance_means(world, ref_total)
         direct_instances = instance_means(world, exact_direct)
 
-    rows = []
+    rows: list[dict[str, Any]] = []
     progress.step(f"running {sum(m.available for m in selected)} method(s)", total=len(selected))
     for m in selected:
         if not m.available:
@@ -95,13 +97,14 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
             continue
         ctx = BenchContext(scene=scene, sun=sun, optics=params.optics, warnings=report.warnings, direct=exact)
         t = time.perf_counter()
+        assert m.run is not None  # m.available
         out = m.run(ctx)
         seconds_volume = time.perf_counter() - t
         scat = from_prototypes(world, out.e_scattered)
         if out.scattered_per_instance_leaf is not None:
             scat = np.asarray(out.scattered_per_instance_leaf, dtype=np.float64)
         own = from_prototypes(world, out.e_direct)
-        errors = {
+        errors: dict[str, float | None] = {
             "rel_rms_scattered": rel_rms(scat, res.e_scattered),
             # with the exact direct light (--direct rays, the default of every bake)
             "rel_rms_direct": rel_rms(exact_direct, res.e_direct),
@@ -122,6 +125,7 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
             errors["instance_rel_rms_total"] = rel_rms(direct_instances + inst_scat, ref_instances)
         seconds = seconds_volume + direct_seconds
         for key, value in errors.items():
+            assert value is not None  # every value is a measured float until this loop nulls it
             if not np.isfinite(value):  # the reference is all zero there: a relative error is undefined
                 report.warnings.append(f"{m.name}: {key} is undefined (the reference is zero everywhere); reported as null.")
                 errors[key] = None

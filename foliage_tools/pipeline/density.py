@@ -226,8 +226,8 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
         units = "1/stage_unit (leaf area density)" if params.method == "area" else "fraction of 27 sub-cells"
         grid_meta = {"units": units, "densityMethod": params.method, "metersPerUnit": float(scene.meters_per_unit)}
         grids = (
-            Grid("density", res.density.astype(np.float32), tuple(res.grid.origin), res.grid.voxel_size, grid_meta),
-            Grid("woodFraction", res.wood_fraction.astype(np.float32), tuple(res.grid.origin), res.grid.voxel_size, {"units": "fraction"}),
+            Grid("density", res.density.astype(np.float32), res.grid.origin, res.grid.voxel_size, grid_meta),
+            Grid("woodFraction", res.wood_fraction.astype(np.float32), res.grid.origin, res.grid.voxel_size, {"units": "fraction"}),
         )
         edits.volumes.append(prototype_volume(scene, i, vdb_file=vdb_path(out, scene, i), grids=grids, attributes=meta,
                                               purpose=params.volume_purpose))

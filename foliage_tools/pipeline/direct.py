@@ -130,9 +130,13 @@ def bake_direct(scene: Scene, sun: Sun, choice: DirectChoice, progress: Progress
         if world.lone and count == 0:
             continue
         base = leaves.start
+
+        def on_progress(d: int, _t: int, base: int = base) -> None:
+            advance(base + d, n)
+
         parts.append(direct.solve(direct.DirectInputs(tris, ids, count, sun.direction),
                                   direct.DirectParams(samples_per_leaf=samples, seed=choice.seed),
-                                  progress=lambda d, _t, base=base: advance(base + d, n)))
+                                  progress=on_progress))
     res = parts[0] if len(parts) == 1 else _joined(parts)  # (a lone world has leaves: bake_world)
     log.info("direct: %d shadow rays per leaf over %s leaves, %.2f s", samples, f"{n:,}", res.seconds)
     counts = [p.leaves.count for p in scene.prototypes]

@@ -45,6 +45,7 @@ import logging
 import hashlib
 import time
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy import ndimage
@@ -118,8 +119,8 @@ def forest_volume(scene: Scene, forest: ForestLight, vdb_file, purpose: str, met
 
     g = forest.grid
     meta = {"foliage:method": method, "foliage:forest": True}
-    grids = (Grid("forestDensity", forest.lad, tuple(g.origin), g.voxel_size, meta),
-             Grid("forestScattered", forest.scattered.astype(np.float32), tuple(g.origin), g.voxel_size, meta))
+    grids = (Grid("forestDensity", forest.lad, g.origin, g.voxel_size, meta),
+             Grid("forestScattered", forest.scattered.astype(np.float32), g.origin, g.voxel_size, meta))
     root = scene.default_prim or ""
     world_from_root = np.asarray(scene.default_prim_transform, dtype=np.float64)
     transform = None if np.allclose(world_from_root, np.eye(4)) else np.linalg.inv(world_from_root)
@@ -133,7 +134,9 @@ def forest_volume(scene: Scene, forest: ForestLight, vdb_file, purpose: str, met
 def _grid_over(points: np.ndarray, voxel: float) -> GridSpec:
     lo = points.min(axis=0) - voxel
     shape = tuple(int(n) for n in np.maximum(np.ceil((points.max(axis=0) + voxel - lo) / voxel), 2))
-    return GridSpec(origin=tuple(float(v) for v in lo), voxel_size=float(voxel), shape=shape)
+    # lo and shape have one entry per axis
+    return GridSpec(origin=cast("tuple[float, float, float]", tuple(float(v) for v in lo)), voxel_size=float(voxel),
+                    shape=cast("tuple[int, int, int]", shape))
 
 
 def _solve(lad: np.ndarray, grid: GridSpec, sun_dir: np.ndarray, optics: LeafOptics, tolerance: float,
@@ -149,6 +152,7 @@ def _solve(lad: np.ndarray, grid: GridSpec, sun_dir: np.ndarray, optics: LeafOpt
     total = single_scatter.corrected_energy(problem, res, mask=occupied, fill=near, directions=directions)
     # the exact first order matters here: with the lattice's own, every factor of the 5 x 5 stand read
     # 6-19 % above the reference's (it does not cancel in the ratio)
+    assert res.beam_direct is not None  # the sun_source boundary is a beam
     beam = res.beam_direct[..., 0, :]
     return np.maximum(total[..., 0, :] - beam, 0.0), beam
 

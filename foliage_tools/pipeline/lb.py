@@ -240,6 +240,7 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
     # (A Kronecker base is a beam along a lattice line, which the ordinates lattice attenuates exactly, so
     # its boundary form already is its first-collision form: see lb.beam_fields.)
     first_collision = params.bases == "sun" and params.sun_source == "first-collision"
+    boundaries: tuple[lb.Boundary, ...]
     if params.bases == "sun":
         boundaries = (lb.sun_source(sun_local) if first_collision else lb.sun_boundary(sun_local, params.sun_split),)
     else:
@@ -276,6 +277,7 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
         problem = replace(problem, boundaries=lb.relighting_boundaries())
     t_un = time.perf_counter()
     if first_collision:  # the exact beam the solve attenuated for its source
+        assert res.beam_direct is not None  # first_collision solves the sun_source beam
         unscattered = res.beam_direct.astype(np.float32)
     else:
         unscattered = lb.unscattered_energy(problem)  # exact one-pass transport, no lattice iteration
@@ -344,11 +346,11 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         half = params.grid_precision == "half"  # the LB grids only: the density and earlier grids carried keep theirs
         kept = None
         if params.bases == "sun":
-            grids = [Grid("lbSun", bake.sun_total.astype(np.float32), tuple(g.origin), g.voxel_size, meta, half=half)]
+            grids = [Grid("lbSun", bake.sun_total.astype(np.float32), g.origin, g.voxel_size, meta, half=half)]
         else:
             fields, base_meta, kept = base_fields(bake.total, g, proto, params.base_extent)
-            grids = [Grid("lbAmbient", fields[..., 0, :], tuple(g.origin), g.voxel_size, {**meta, **base_meta}, half=half)]
-            grids += [Grid(f"lbBase{k:02d}", fields[..., k, :], tuple(g.origin), g.voxel_size, {**meta, **base_meta}, half=half)
+            grids = [Grid("lbAmbient", fields[..., 0, :], g.origin, g.voxel_size, {**meta, **base_meta}, half=half)]
+            grids += [Grid(f"lbBase{k:02d}", fields[..., k, :], g.origin, g.voxel_size, {**meta, **base_meta}, half=half)
                       for k in range(1, 19)]
         r = bake.result
         attrs = {

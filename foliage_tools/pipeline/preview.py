@@ -25,6 +25,7 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -315,9 +316,10 @@ def load_lb_bases(path: Path, scene: Scene, warnings: list[str]) -> dict[str, np
         g0 = grids[0]
         if any(g.values.shape != g0.values.shape or g.origin != g0.origin or g.voxel_size != g0.voxel_size for g in grids):
             raise InputError(f"@{path}@: the lbBase grids of <{vol}> are not on one grid; re-run `foliage lb --bases all`.")
-        spec = GridSpec(g0.origin, g0.voxel_size, g0.values.shape[:3])
+        spec = GridSpec(g0.origin, g0.voxel_size, cast("tuple[int, int, int]", g0.values.shape[:3]))
         rho = density_from_lad(area_per_voxel(proto.triangles(leaves=True), spec) / spec.voxel_volume, spec.voxel_size)
-        medium = Medium(*(tuple(float(x) for x in medium_attrs[n]) for n in ("sigmaA", "sigmaS", "g")))
+        sigma_a, sigma_s, asym = (tuple(float(x) for x in medium_attrs[n]) for n in ("sigmaA", "sigmaS", "g"))
+        medium = Medium(sigma_a, sigma_s, asym)
         problem = lbm.LBProblem(rho, medium, lbm.relighting_boundaries()[1:])
         total = np.stack([g.values for g in grids], axis=3)  # (nx, ny, nz, 18, 3)
         scattered = np.maximum(lbm.scattered_leaf_irradiance(total, lbm.unscattered_energy(problem)), 0.0)
@@ -366,7 +368,7 @@ def load_smax_data(path: Path, scene: Scene) -> dict[str, tuple[float, dict[str,
         else:
             corners = v[mesh.triangles].reshape(-1, 8)
         if proto.path not in out:
-            tau = taus[proto.path]
+            tau: Any = taus[proto.path]  # the attribute's value as USD gives it, checked here
             if tau is None or not (math.isfinite(float(tau)) and float(tau) >= 0):
                 raise InputError(f"@{path}@: <{proto.path}> has s_max on its leaves but no valid foliage:tau "
                                  f"(got {tau!r}); the smax bake writes both. {rerun}")
@@ -396,14 +398,14 @@ def choose_lighting(scene: Scene, sun: tuple[float, float] | None, warnings: lis
             warnings.append(f"{scene.path}: {len(distant)} distant lights; the preview uses <{distant[0].path}> as the sun.")
         direction = np.asarray(distant[0].direction, dtype=np.float64)
         # DESIGN.md section 3: the sun delivers irradiance 1; its colour tints it
-        irradiance, source = tuple(float(c) for c in distant[0].color), f"<{distant[0].path}>"
+        irradiance, source = cast("tuple[float, float, float]", tuple(float(c) for c in distant[0].color)), f"<{distant[0].path}>"
         az, el = angles_from_direction(direction, scene.up_axis)
     else:
         az, el = DEFAULT_SUN
         direction, irradiance, source = direction_from_angles(az, el, scene.up_axis), (1.0, 1.0, 1.0), "default"
     if domes:
         # a dome light's intensity × colour is the sky's radiance (UsdLux)
-        sky = tuple(float(domes[0].intensity * c) for c in domes[0].color)
+        sky = cast("tuple[float, float, float]", tuple(float(domes[0].intensity * c) for c in domes[0].color))
         sky_source = f"<{domes[0].path}>"
     else:
         sky, sky_source = DEFAULT_SKY_RADIANCE, "default"
@@ -644,6 +646,7 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
             progress.advance()
         renderer_name = renderer.renderer_name
         samples = renderer.samples
+    assert exposure is not None  # chosen on the first frame
     report.outputs = [str(p) for p in paths]
     report.stats = {
         "methods": list(methods),

@@ -134,6 +134,7 @@ class ReferenceBake:
     def prototype_values(self, per_leaf: np.ndarray, counts: list[int]) -> list[np.ndarray]:
         """Per prototype, its leaves' values: the mean over its instances (pooled, or :func:`prototype_means`)."""
         if self.pooled is None:
+            assert self.world is not None  # bake_reference copies the world exactly when it does not pool
             return prototype_means(self.world, per_leaf, len(counts), counts)
         return [per_leaf[self.pooled[p]:self.pooled[p + 1]] for p in range(len(counts))]
 
@@ -144,7 +145,7 @@ class _ProgressAdapter:
     def __init__(self, progress: Progress, message: str) -> None:
         self.progress = progress
         self.message = message
-        self.done = None
+        self.done: int | None = None
 
     def __call__(self, done: int, total: int) -> None:
         if self.done is None:
@@ -202,6 +203,7 @@ def bake_reference(scene: Scene, sun: Sun, params: ReferenceParams, progress: Pr
     if not flat and traced_alone(scene):
         inputs, pooled = placed_inputs(scene, sun, params.optics)
         world = None
+        assert inputs.placements is not None  # placed_inputs gives placements
         where = (f"{len(scene.instances):,} placed instances of {len(scene.prototypes)} prototype(s) "
                  f"({sum(len(t) for t in inputs.placements.triangles):,} triangles, not copied)")
     else:
@@ -263,6 +265,8 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
             "would do)."
         )
     if bake.world is None:  # traced through placements: each instance's own tallies
+        # reference.solve tallies them whenever it traces placements
+        assert res.instance_direct is not None and res.instance_scattered is not None
         pv, at = instance_edits(scene, "ref", {"instanceDirect": res.instance_direct,
                                                "instanceScattered": res.instance_scattered})
     else:  # where each instance stands

@@ -13,6 +13,7 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -88,7 +89,7 @@ class SmaxBake:
 def sky_radiance(scene: Scene) -> tuple[float, float, float]:
     """The dome light's intensity × colour as sky radiance per unit sun irradiance (0 without a dome)."""
     domes = [light for light in scene.lights if light.kind == "dome"]
-    return tuple(float(domes[0].intensity * c) for c in domes[0].color) if domes else (0.0, 0.0, 0.0)
+    return cast("tuple[float, float, float]", tuple(float(domes[0].intensity * c) for c in domes[0].color)) if domes else (0.0, 0.0, 0.0)
 
 
 def lit_fractions(scene: Scene, exact: DirectBake) -> list[np.ndarray]:

@@ -43,6 +43,7 @@ import logging
 import os
 import time
 from dataclasses import dataclass, replace
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -180,7 +181,7 @@ class SppParams:
             object.__setattr__(self, "g_orders", exact)
         if self.g_resolution is None:
             object.__setattr__(self, "g_resolution", G_RESOLUTION if exact else 0)
-        if self.g_resolution != 0 and not (4 <= self.g_resolution <= 512):
+        if self.g_resolution and not (4 <= self.g_resolution <= 512):
             raise UsageError(f"--g-resolution must be 0 (per leaf) or between 4 and 512, got {self.g_resolution}.")
         if self.g_weights not in gf.G_WEIGHTS:
             raise UsageError(f"--g-weights must be one of {', '.join(gf.G_WEIGHTS)}, got {self.g_weights!r}.")
@@ -388,7 +389,7 @@ def bake_prototype(
         t_depths += time.perf_counter() - t0
         results.append(gf.solve_sppg(
             own, normals=proto.leaves.normals, optics=params.optics, sun_direction=sun_local, directions=dirs_local, up=up_local,
-            neighbour_depths=extra, params=gf.SPPGParams(refine=params.refine, model=params.model, g_weights=params.g_weights, g_orders=params.g_orders), g_depths=g_depths, **vis,
+            neighbour_depths=extra, params=gf.SPPGParams(refine=params.refine, model=params.model, g_weights=params.g_weights, g_orders=bool(params.g_orders)), g_depths=g_depths, **vis,
         ))
     result = _mean_result(results)
     # cells of the prototype alone, as seen by its first instance
@@ -397,8 +398,8 @@ def bake_prototype(
     up_local = to_prototype_space(up_world, m)
     dirs_local = np.array([to_prototype_space(d, m) for d in dirs_world])
     cells = depth_mod.depth_samples(dens.density, dens.grid, sun_direction=sun_local, directions=dirs_local)
-    g_kw = dict(boundary_depth=cells.sample_depth, directions=dirs_local, light_direction=sun_local,
-                light_depth=cells.sun_depth, light_thickness=cells.sun_thickness, up=up_local)
+    g_kw: dict[str, Any] = dict(boundary_depth=cells.sample_depth, directions=dirs_local, light_direction=sun_local,
+                                light_depth=cells.sun_depth, light_thickness=cells.sun_thickness, up=up_local)
     if params.g_weights == "paper":
         g_cells = gf.gfactor(**g_kw)
     else:  # the mean over the channels' G, as SPPGResult.gfactor
@@ -493,7 +494,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
     report, scene, sun = begin_bake("spp", path, out, params.sun, progress)
     params = resolve_depth(scene, params)
     edits = LayerEdits()
-    protos = []
+    protos: list[dict] = []
     bakes = bake_spp(scene, sun, params, report.warnings, progress)
     exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
     best_name = "sppg" if params.gfactor else "spp"

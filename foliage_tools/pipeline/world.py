@@ -15,10 +15,11 @@ forest lattice (``pipeline.forest``).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import cast
 
 import numpy as np
 
-from foliage_tools.scene.model import Scene
+from foliage_tools.scene.model import Instance, Scene
 
 
 @dataclass(frozen=True)
@@ -58,7 +59,7 @@ def world_triangles(scene: Scene) -> int:
 
 def lone_trees(scene: Scene) -> Scene:
     """The scene with one instance per instanced prototype, its first (so it sees the sun as that one does)."""
-    firsts = {}
+    firsts: dict[int, Instance] = {}
     for inst in scene.instances:
         firsts.setdefault(inst.prototype, inst)
     return replace(scene, instances=tuple(firsts[p] for p in sorted(firsts)))
@@ -68,7 +69,8 @@ def lone_parts(world: World) -> list[tuple[slice, slice]]:
     """Per tree the (triangle, leaf) slices to trace alone: each instance of a lone world, or the whole world."""
     if not world.lone:
         return [(slice(0, len(world.triangles)), slice(0, int(world.offsets[-1])))]
-    t = world.triangle_offsets
+    # None only for a world without triangles (assemble), which has no instances to index it with below
+    t = cast(np.ndarray, world.triangle_offsets)
     return [(slice(int(t[n]), int(t[n + 1])), world.instance_slice(n)) for n in range(len(world.instance_prototype))]
 
 

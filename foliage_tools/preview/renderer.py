@@ -39,6 +39,7 @@ import time
 from dataclasses import dataclass, field
 from importlib import resources
 from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -46,6 +47,9 @@ from foliage_tools.errors import OutputError, UsageError
 from foliage_tools.preview.camera import Camera, bounds_corners, look_at, orthographic
 from foliage_tools.preview.optics import SurfaceOptics
 from foliage_tools.scene.model import Scene
+
+if TYPE_CHECKING:  # moderngl is imported where the context is made (create_context); here only for its types
+    import moderngl
 
 RGB = tuple[float, float, float]
 MAX_SKY_SAMPLES = 16
@@ -415,24 +419,24 @@ class _Draw:
     key: tuple[int, int]
     """(prototype index, mesh index)."""
     leaf: bool
-    positions: object
-    normals: object
-    instances: object
+    positions: moderngl.Buffer
+    normals: moderngl.Buffer
+    instances: moderngl.Buffer
     instance_count: int
-    indirect: dict[str, object]
+    indirect: dict[str, moderngl.Buffer]
     triangle_count: int = 0
-    smax: object = None
+    smax: moderngl.Buffer | None = None
     """(3T, 8) float32 buffer of s_max per vertex (the ``smax`` method), or None."""
     tau: float = 0.0
     omega: np.ndarray | None = None
     """(8, 3) eq. (5.28) directions in the prototype's frame."""
-    sky_cache: object = None
+    sky_cache: moderngl.Texture | None = None
     """RG float texture: sky visibility (front, back) per vertex and instance, written once by the sky pass."""
     sky_cache_width: int = 1
-    lb_tex: object = None
+    lb_tex: moderngl.Texture | None = None
     """RGB float texture of the 18 LB relighting bases per vertex (texel vertex * 18 + k), or None."""
     lb_width: int = 1
-    lb_inst: object = None
+    lb_inst: moderngl.Buffer | None = None
     """Per-instance (3 base indices, 3 barycentric weights) buffer, rewritten for each frame's sun."""
     transforms: np.ndarray | None = None
     """(N, 4, 4) world-from-prototype matrices of the instances (for the sun in each instance's frame)."""
@@ -461,11 +465,11 @@ class Renderer:
         self.max_texture = int(self.ctx.info.get("GL_MAX_TEXTURE_SIZE", 8192) or 8192)
         self.shadow_size = shadow_size
         self.renderer_name = str(self.ctx.info.get("GL_RENDERER", "unknown"))
-        self._programs: dict[tuple[str, bool], object] = {}
-        self._vaos: dict[tuple, object] = {}
-        self._buffers: list = []
-        self._lb_textures: list = []
-        self._targets = None
+        self._programs: dict[tuple[str, bool | str], moderngl.Program] = {}
+        self._vaos: dict[tuple[Any, ...], moderngl.VertexArray] = {}
+        self._buffers: list[moderngl.Buffer] = []
+        self._lb_textures: list[moderngl.Texture] = []
+        self._targets: list[moderngl.Renderbuffer | moderngl.Framebuffer] | None = None
         self._target_size: tuple[int, int] | None = None
         self._shadow_key: tuple | None = None
         self._upload()
@@ -576,6 +580,9 @@ class Renderer:
         from foliage_tools.geometry.sun import to_prototype_space
         from foliage_tools.lighting.lattice import barycentric_weights
 
+        # _upload gives every draw its transforms, and lb_inst with lb_tex (render calls this only with lb_tex)
+        assert draw.transforms is not None and draw.lb_inst is not None
+
         rows = np.zeros((len(draw.transforms), 6), np.float32)
         for i, m in enumerate(draw.transforms):
             try:
@@ -587,7 +594,7 @@ class Renderer:
             rows[i, 3:] = w
         draw.lb_inst.write(rows.tobytes())
 
-    def _vao(self, program_key: tuple[str, bool], draw: _Draw, indirect_name: str | None):
+    def _vao(self, program_key: tuple[str, bool | str], draw: _Draw, indirect_name: str | None):
         key = (program_key, draw.key, indirect_name)
         if key not in self._vaos:
             prog = self._program(*program_key)
@@ -595,8 +602,10 @@ class Renderer:
             if program_key[0] != "shadow":
                 content.append((draw.normals, "3f", "in_normal"))
             if indirect_name == "smax":
+                assert draw.smax is not None  # render asks for "smax" only for draws with s_max
                 content.append((draw.smax, "4f 4f", "in_smax0", "in_smax1"))
             elif indirect_name == "lb-relight":
+                assert draw.lb_inst is not None  # render asks for "lb-relight" only for draws with the LB bases
                 content.append((draw.lb_inst, "3f 3f/i", "in_lb_index", "in_lb_weight"))
             elif indirect_name is not None:
                 content.append((draw.indirect[indirect_name], "3f", "in_indirect"))
@@ -617,15 +626,15 @@ class Renderer:
             self._ground_vbo = self._buffer(corners)
             self._ground_nbo = self._buffer(face_normals(corners))
             self._ground_key = key
-        key = ("ground",)
-        if key not in self._vaos:
+        vao_key = ("ground",)
+        if vao_key not in self._vaos:
             prog = self._program("ground")
-            self._vaos[key] = self.ctx.vertex_array(
+            self._vaos[vao_key] = self.ctx.vertex_array(
                 prog,
                 [(self._ground_vbo, "3f", "in_position"), (self._ground_nbo, "3f", "in_normal"), (self._ground_inst, *INSTANCE_LAYOUT)],
                 skip_errors=True,
             )
-        return self._vaos[key]
+        return self._vaos[vao_key]
 
     def _render_targets(self, width: int, height: int):
         """Float radiance + tree mask + depth at the supersampled size (reused while the size stays)."""
@@ -729,9 +738,9 @@ class Renderer:
         for name, value in self._sky_uniform_arrays().items():
             if name in prog:
                 prog[name].write(value)
-        for name, value in self._sky_uniforms().items():
+        for name, scalar in self._sky_uniforms().items():
             if name in prog:
-                prog[name].value = value
+                prog[name].value = scalar
         self._sky_tex.use(location=1)
         for draw in self._draws:
             vertices = 3 * draw.triangle_count
@@ -768,7 +777,7 @@ class Renderer:
         prog["u_sm_rho_r"].value = tuple(rho_r)
         prog["u_sm_rho_t"].value = tuple(rho_t)
 
-    def smax_irradiance(self, lighting: Lighting, optics: SurfaceOptics | None = None) -> list[dict[str, np.ndarray]]:
+    def smax_irradiance(self, lighting: Lighting, optics: SurfaceOptics | None = None) -> list[dict[str, Any]]:
         """Boulanger's per-leaf irradiance as the vertex shader computes it, read back by transform feedback.
 
         One dict per leaf draw that has s_max: ``key`` (prototype, mesh index) and, per
@@ -791,6 +800,7 @@ class Renderer:
         for draw in self._draws:
             if draw.smax is None:
                 continue
+            assert draw.omega is not None  # _upload sets omega for every mesh with s_max
             self._smax_uniforms(prog, draw, optics)
             local_up = -draw.omega[0] - draw.omega[1] - draw.omega[2] - draw.omega[3]  # ω_4..ω_7 lie above the horizon (eq. (5.28))
             sky = sky_radiance_per_direction(lighting.sky_radiance, optics.ground_reflectance, draw.omega, local_up)
@@ -849,7 +859,7 @@ class Renderer:
             if sun @ up <= 0.0:
                 sun_irr = np.zeros(3)  # the ground hides a sun below the horizon
             # ground bounce seen by the tree: Lambertian ground lit by the unshadowed sun and sky
-            ground_radiance = np.asarray(optics.ground_reflectance) / math.pi * (sun_irr * max(sun @ up, 0.0) + math.pi * sky)
+            ground_radiance = np.asarray(optics.ground_reflectance) / math.pi * (sun_irr * max(float(sun @ up), 0.0) + math.pi * sky)
         self._shadow_pass(sun)
         self._sky_pass()
 
@@ -892,7 +902,7 @@ class Renderer:
             "u_sky_cache": 2,
         }
         leaf = optics.leaf
-        material = {
+        material: dict[str, dict[str, object]] = {
             "leaf": {
                 "u_rho_rf": leaf.reflectance_front,
                 "u_rho_rb": leaf.reflectance_back,
@@ -909,12 +919,14 @@ class Renderer:
             for name, value in common.items():
                 if name in prog:
                     prog[name].write(value)
-            for name, value in {**scalars, **material[kind]}.items():
+            for name, scalar in {**scalars, **material[kind]}.items():
                 if name in prog:
-                    prog[name].value = value
+                    prog[name].value = scalar
 
         for draw in self._draws:
             kind = "leaf" if draw.leaf else "wood"
+            name: str | None
+            key: tuple[str, bool | str]
             if method == "smax" and draw.smax is not None:
                 name, key = "smax", (kind, "smax")
             elif method == "lb" and draw.lb_tex is not None:
@@ -928,6 +940,7 @@ class Renderer:
                 self._smax_uniforms(prog, draw, optics)
             if name == "lb-relight":
                 self._lb_weights(draw, sun)
+                assert draw.lb_tex is not None  # "lb-relight" is chosen above only when it is
                 draw.lb_tex.use(location=3)
                 prog["u_lb_bases"].value = 3
                 prog["u_lb_width"].value = draw.lb_width
@@ -951,7 +964,7 @@ class Renderer:
             radiance=np.ascontiguousarray(rgba[:, :, :3]),
             alpha=np.ascontiguousarray(rgba[:, :, 3]),
             tree=np.ascontiguousarray(tree),
-            sky=tuple(float(c) for c in sky),
+            sky=cast(RGB, tuple(float(c) for c in sky)),  # Lighting checks sky_radiance has 3 values
             seconds=time.perf_counter() - t0,
         )
 

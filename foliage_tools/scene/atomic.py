@@ -48,7 +48,8 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from types import FrameType
+from typing import Any, Callable, Iterable, Iterator
 
 from foliage_tools.errors import OutputError
 
@@ -153,8 +154,8 @@ def _interrupts_held() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    caught: list[tuple[int, object]] = []
-    previous = {}
+    caught: list[tuple[int, FrameType | None]] = []
+    previous: dict[int, Callable[[int, FrameType | None], Any]] = {}
     for sig in INTERRUPT_SIGNALS:
         handler = signal.getsignal(sig)
         if callable(handler):
@@ -163,8 +164,8 @@ def _interrupts_held() -> Iterator[None]:
     try:
         yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
         if caught:
             signum, frame = caught[0]
             previous[signum](signum, frame)
@@ -222,7 +223,7 @@ def _kill_hook(index: int) -> None:
 
 def _move(directory: Path, staging: Path, names: list[str]) -> list[Path]:
     """Step 3: rename ``names`` from ``staging`` into ``directory`` in order (the test hooks run before each)."""
-    done = []
+    done: list[Path] = []
     visible = not _STAGING.fullmatch(directory.name)  # not a commit inside another result's staging directory
     for i, name in enumerate(names):
         src, dst = staging / name, directory / name
@@ -254,7 +255,7 @@ class Commit:
     def __init__(self, directory: Path, name: str) -> None:
         self.directory = Path(directory)
         self.name = name
-        self.staging = self.directory / f".{staging_label(name)}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
+        self.staging: Path | None = self.directory / f".{staging_label(name)}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
         try:
             self.staging.mkdir()
             (self.staging / OWNER).write_text(f"{socket.gethostname()} {os.getpid()}\n", encoding="utf-8")
@@ -273,20 +274,24 @@ class Commit:
         self.discard()
 
     def path(self, name: str) -> Path:
+        assert self.staging is not None, "the commit is already done or discarded"
         return self.staging / name
 
     def files(self) -> list[str]:
         """The names staged so far (hidden entries are the commit's own)."""
+        assert self.staging is not None, "the commit is already done or discarded"
         return sorted(p.name for p in self.staging.iterdir() if not p.name.startswith(".") and p.is_file())
 
     def commit(self, names: Iterable[str]) -> list[Path]:
         """Move ``names`` into place together (module docstring, steps 1-4); the final paths, in order."""
         names = list(names)
-        missing = [n for n in names if not (self.staging / n).is_file()]
+        staging = self.staging
+        assert staging is not None, "the commit is already done or discarded"
+        missing = [n for n in names if not (staging / n).is_file()]
         if missing:
             raise ValueError(f"not staged: {missing}")
         for n in names:
-            _fsync(self.staging / n)
+            _fsync(staging / n)
         try:
             return self._commit(names)
         except KeyboardInterrupt as exc:
@@ -295,6 +300,7 @@ class Commit:
             raise
 
     def _commit(self, names: list[str]) -> list[Path]:
+        assert self.staging is not None, "the commit is already done or discarded"
         with _directory_lock(self.directory), _interrupts_held():
             for n in names:
                 final = self.directory / n
@@ -358,10 +364,10 @@ def atomic_outputs(paths: list[Path]) -> Iterator[dict[Path, Path]]:
     are removed and nothing is written.
     """
     paths = [Path(p) for p in paths]
-    directory = {p.parent for p in paths}
-    if len(directory) != 1:
-        raise ValueError(f"atomic outputs must share one directory, got {sorted(map(str, directory))}")
-    directory = directory.pop()
+    directories = {p.parent for p in paths}
+    if len(directories) != 1:
+        raise ValueError(f"atomic outputs must share one directory, got {sorted(map(str, directories))}")
+    directory = directories.pop()
     commit = Commit(directory if str(directory) else Path("."), paths[-1].name)
     try:
         yield {p: commit.path(p.name) for p in paths}
@@ -407,8 +413,8 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
         if m and m["label"] in labels and entry.is_dir():
             if not _owner_alive(entry, int(m["pid"])):
                 stale.append((entry, int(m["pid"])))
-        elif legacy.fullmatch(entry.name) and entry.is_file():
-            pid = int(legacy.fullmatch(entry.name)["pid"])
+        elif (lm := legacy.fullmatch(entry.name)) and entry.is_file():
+            pid = int(lm["pid"])
             if not _alive(pid):
                 stale.append((entry, pid))
     if not stale:
@@ -443,7 +449,7 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
 
 def pending_commits(directory: Path) -> list[tuple[Path, list[str]]]:
     """Staging directories in ``directory`` that hold a journal: commits a killed run did not finish, and their names."""
-    out = []
+    out: list[tuple[Path, list[str]]] = []
     try:
         entries = list(Path(directory).iterdir())
     except OSError:

@@ -13,6 +13,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -307,7 +308,8 @@ class _Reader:
             _refuse([bakeable.light_problem(prim, m, self.path)])
         light = UsdLux.LightAPI(prim)
         intensity = float(light.GetIntensityAttr().Get() or 0.0)
-        color = tuple(float(c) for c in (light.GetColorAttr().Get() or (1.0, 1.0, 1.0)))
+        # inputs:color is a color3f
+        color = cast("tuple[float, float, float]", tuple(float(c) for c in (light.GetColorAttr().Get() or (1.0, 1.0, 1.0))))
         if prim.IsA(UsdLux.DistantLight):
             d = m[:3, 2]  # the light travels along its -Z axis, so +Z points toward the sun
             kind = "distant"

@@ -8,8 +8,10 @@ background (0).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -92,7 +94,7 @@ def to_vdb(grid: Grid):
     return g
 
 
-def write_vdb(path: Path, grids: list[Grid], *, metadata: dict | None = None, carried: list[tuple[Path, str]] = ()) -> None:
+def write_vdb(path: Path, grids: list[Grid], *, metadata: dict | None = None, carried: Sequence[tuple[Path, str]] = ()) -> None:
     """Write grids to ``path`` (not atomic by itself: pass a temporary path).
 
     ``carried``: (file, grid name) of grids an earlier stage wrote, copied as they
@@ -166,7 +168,7 @@ def on_lattice(grid: Grid) -> Grid:
         raise ValueError(f"grid {grid.name!r} reaches outside the lattice its metadata records ({shape} at {tuple(origin)})")
     values = np.zeros(shape + grid.values.shape[3:], dtype=np.float32)
     values[tuple(slice(int(a), int(a + b)) for a, b in zip(offset, n))] = grid.values
-    return replace(grid, values=values, origin=tuple(float(v) for v in origin))
+    return replace(grid, values=values, origin=(float(origin[0]), float(origin[1]), float(origin[2])))
 
 
 def read_grid(path: Path, name: str) -> Grid:
@@ -195,7 +197,7 @@ def read_grid(path: Path, name: str) -> Grid:
     w0 = np.array(g.transform.indexToWorld(lo))
     w1 = np.array(g.transform.indexToWorld((lo[0] + 1, lo[1], lo[2])))
     h = float(np.linalg.norm(w1 - w0))
-    origin = tuple(float(x) for x in (w0 - 0.5 * h))
+    origin = cast("tuple[float, float, float]", tuple(float(x) for x in (w0 - 0.5 * h)))  # w0 is a 3-vector
     meta = {k: v for k, v in g.metadata.items() if not k.startswith("file_")}
     half = bool(meta.pop("is_saved_as_half_float", False))  # OpenVDB's own key for saveFloatAsHalf: Grid.half
     return Grid(name=name, values=arr, origin=origin, voxel_size=h, metadata=meta, half=half)

@@ -343,6 +343,7 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path, carried: dict[str, l
         for prim in [volume.GetPrim(), *fields]:
             _apply_lighting_metadata(prim, vol.attributes)
         for placement in vol.placements:
+            assert vol.class_prim is not None  # VolumeEdit refuses placements without one
             _place(stage, vol.class_prim, placement)
     for edit in edits.attributes:
         prim = stage.OverridePrim(edit.prim)
