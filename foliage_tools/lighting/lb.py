@@ -198,7 +198,7 @@ from typing import Literal, overload
 import numpy as np
 from numba import njit, prange
 
-from foliage_tools.errors import EXIT_INTERNAL, FoliageError, UsageError
+from foliage_tools.errors import UsageError
 from foliage_tools.lighting.collision import (
     LATTICES,
     Medium,
@@ -277,10 +277,11 @@ class LatticeStabilityError(UsageError, ValueError):
     """rho * sigma_t > 1 somewhere: the explicit lattice update would be unstable."""
 
 
-class LBNumericalError(FoliageError, ArithmeticError):
-    """The solver produced non-finite values (raised instead of returning them; exit code 3, not bad input)."""
+class LBNumericalError(ArithmeticError):
+    """The solver produced non-finite values (raised instead of returning them).
 
-    exit_code = EXIT_INTERNAL
+    Not a :class:`~foliage_tools.errors.FoliageError`: it is no fault of the input, so the command line treats it as
+    any internal failure (exit 3, with a crash log holding the traceback)."""
 
 
 #: Largest per-sweep ratio q an extrapolation jump f + (f - f_prev) q / (1 - q) uses (a jump of at most 199x the
