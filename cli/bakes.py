@@ -15,6 +15,7 @@ from foliage_tools.cli.common import (
     leaf_optics_from_flags, run,
     grid_precision_option, setup_logging, volume_purpose_option,
 )
+from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE
 
 
 def _eight_directions(ctx: click.Context, param: click.Parameter, value: int) -> int:
@@ -256,7 +257,7 @@ def bench_table(scene: Path, s: dict) -> Table:
 @click.command()
 @SCENE
 @OUT
-@click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True, help="Lattice nodes along the longest edge of each prototype's foliage bounds.")
+@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True, help="Lattice nodes along the longest edge of each prototype's foliage bounds.")
 @click.option("--bases", type=click.Choice(["sun", "all"]), default="sun", show_default=True,
               help="sun: the geist2008 sun boundary for the scene's sun (grid lbSun); all: the 18 Kronecker bases + ambient "
                    "of steele2010 3.1 for relighting (grids lbBase01..18, lbAmbient; 18x the memory and work of sun: "
@@ -334,7 +335,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
 def bake_job_options(fn):
     """The options of one bake (``bake``, and ``batch`` for each of its assets)."""
     for option in reversed((
-        click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True, help="Density and LB grid resolution."),
+        click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True, help="Density and LB grid resolution."),
         click.option("--with-reference", is_flag=True, help="Also trace the Monte Carlo reference and write bench.json / bench.png."),
         click.option("--reference-paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
                      help="Most reference sun paths (with --with-reference); it stops earlier at --reference-noise."),
@@ -428,7 +429,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
 @click.command()
 @SCENE
 @OUT
-@click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True, help="Density grid voxels along the longest foliage edge.")
+@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True, help="Density grid voxels along the longest foliage edge.")
 @click.option("--directions", type=click.IntRange(min=2), default=16, show_default=True, help="Sample directions for the G-factor and the sky (even; the paper used 16-22).")
 @click.option("--no-gfactor", is_flag=True, help="Plain SPP only: skip the sppg primvars (G is still written as a grid).")
 @click.option("--refine", is_flag=True, help="Integrate the refined radiance of shinya2013 appendix A.1 for the sun's scattered light "

@@ -20,6 +20,7 @@ from foliage_tools import __version__
 from foliage_tools.cli import common, console
 from foliage_tools.cli.common import OUT, SCENE, common_options, execute, run, setup_logging, volume_purpose_option
 from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED
+from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -142,7 +143,9 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
 @SCENE
 @OUT
 @click.option("--voxel-size", type=float, default=None, help="Voxel edge length in stage units (exclusive with --resolution).")
-@click.option("--resolution", type=int, default=None, help="Voxels along the longest edge of each prototype's foliage bounds [default: 64].")
+@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=None,
+              help=f"Voxels along the longest edge of each prototype's foliage bounds [default: {DEFAULT_RESOLUTION}; "
+                   f"{RESOLUTION_RANGE[0]}-{RESOLUTION_RANGE[1]}].")
 @click.option("--method", type=click.Choice(["area", "subgrid"]), default="area", show_default=True,
               help="area: exact leaf area per voxel / voxel volume (leaf-area density, 1/unit). "
                    "subgrid: geist2008 sec. 4.2 heuristic, fraction of 27 sub-cells touched (0..1).")
@@ -185,7 +188,7 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
 
 @cli.command()
 @SCENE
-@click.option("--resolution", type=click.IntRange(4, 512), default=64, show_default=True,
+@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True,
               help="Grid nodes along the longest edge of each tree's foliage bounds (as for lb/spp).")
 @click.option("--bases", type=click.Choice(["sun", "all"]), default="sun", show_default=True,
               help="LB boundary conditions to plan for: the scene's sun, or all 18 relighting bases (x RGB).")

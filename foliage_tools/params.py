@@ -8,7 +8,10 @@ from dataclasses import dataclass
 from foliage_tools.errors import UsageError
 
 DENSITY_METHODS = ("area", "subgrid")
+#: ``--resolution`` of the bake commands (density, smax, spp, lb, bake, plan): grid nodes along the longest edge of
+#: each prototype's foliage bounds, by default and at most (the CLI's range; ``check_resolution``).
 DEFAULT_RESOLUTION = 64
+RESOLUTION_RANGE = (4, 512)
 #: How ``foliage lb`` stores its grids on disk (``--grid-precision``, of lb and bake): ``float`` (float32) or
 #: ``half`` (OpenVDB's saveFloatAsHalf, ``scene.vdb.Grid.half``: half the file, each value within 2^-11; README "LB storage").
 GRID_PRECISIONS = ("float", "half")
@@ -16,6 +19,13 @@ GRID_PRECISIONS = ("float", "half")
 #: the relighting reads (the trilinear stencils of the leaves' corners and centres; steele2010 sec. 4.2 "we do not
 #: store data that will not be accessed"), or ``lattice``, every node. README "LB storage".
 BASE_EXTENTS = ("leaves", "lattice")
+
+
+def check_resolution(value: int, option: str = "--resolution") -> None:
+    """UsageError unless ``value`` is in ``RESOLUTION_RANGE`` (the one message every stage and the CLI give)."""
+    lo, hi = RESOLUTION_RANGE
+    if not (lo <= value <= hi):
+        raise UsageError(f"{option} must be between {lo} and {hi}, got {value}.")
 
 
 @dataclass(frozen=True)

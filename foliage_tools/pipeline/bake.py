@@ -27,7 +27,7 @@ from typing import Any
 from foliage_tools.errors import FoliageError, OutputError, UsageError
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline import bake_warnings
-from foliage_tools.params import GRID_PRECISIONS, DensityParams
+from foliage_tools.params import DEFAULT_RESOLUTION, GRID_PRECISIONS, DensityParams
 from foliage_tools.pipeline.direct import DirectChoice
 from foliage_tools.pipeline.gather import check_gather
 from foliage_tools.pipeline.report import Progress, Report, Silent
@@ -38,7 +38,7 @@ from foliage_tools.scene.atomic import Commit, recover
 class BakeParams:
     optics: LeafOptics
     sun: tuple[float, float] | None = None
-    resolution: int = 64
+    resolution: int = DEFAULT_RESOLUTION
     """Density and LB grid resolution (voxels along the longest foliage edge)."""
     with_reference: bool = False
     """Also trace the Monte Carlo reference and write the bench report."""

@@ -55,7 +55,7 @@ def density_grid(proto: Prototype, params: DensityParams) -> GridSpec:
     if cells > MAX_CELLS:
         raise UsageError(
             f"prototype <{proto.path}>: a {'x'.join(map(str, grid.shape))} grid ({cells / 1e6:.0f}M voxels) is too large; "
-            f"use a larger --voxel-size or a --resolution of at most {MAX_RESOLUTION}."
+            "use a larger --voxel-size or a lower --resolution."
         )
     return grid
 

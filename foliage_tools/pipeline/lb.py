@@ -47,7 +47,7 @@ from foliage_tools.lighting import lb, single_scatter
 from foliage_tools.lighting.collision import LATTICES, PHASES, Medium, brown, density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.lighting.storage import STORAGES
-from foliage_tools.params import BASE_EXTENTS, GRID_PRECISIONS, DensityParams
+from foliage_tools.params import BASE_EXTENTS, DEFAULT_RESOLUTION, GRID_PRECISIONS, DensityParams, check_resolution
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path
 from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
@@ -81,7 +81,7 @@ class LBBakeParams:
 
     optics: LeafOptics
     sun: tuple[float, float] | None = None
-    resolution: int = 64
+    resolution: int = DEFAULT_RESOLUTION
     """Lattice nodes along the longest edge of the foliage bounds."""
     bases: str = "sun"
     """``sun``: the geist2008 sun boundary for the scene's sun; ``all``: the 18 Kronecker bases + ambient (steele2010 3.1)."""
@@ -144,8 +144,7 @@ class LBBakeParams:
             raise UsageError(f"--bases must be one of {', '.join(BASES)}, got {self.bases!r}.")
         if not (0 < self.tolerance < 1):
             raise UsageError(f"--tolerance must be in (0, 1), got {self.tolerance}.")
-        if not (4 <= self.resolution <= 512):
-            raise UsageError(f"--resolution must be between 4 and 512 nodes, got {self.resolution}.")
+        check_resolution(self.resolution)
         if self.solver not in lb.SOLVERS:
             raise UsageError(f"--solver must be one of {', '.join(lb.SOLVERS)}, got {self.solver!r}.")
         if self.storage not in STORAGES:

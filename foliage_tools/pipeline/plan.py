@@ -19,7 +19,7 @@ import numpy as np
 from foliage_tools.errors import UsageError
 from foliage_tools.lighting.envelope import AUTO_FAST_THRESHOLD
 from foliage_tools.lighting.lb import PLAIN_ITERATION_FIELDS, memory_bytes
-from foliage_tools.params import DensityParams
+from foliage_tools.params import DEFAULT_RESOLUTION, DensityParams, check_resolution
 from foliage_tools.pipeline.density import density_grid
 from foliage_tools.pipeline.direct import auto_samples, instance_samples
 from foliage_tools.pipeline.gather import auto_rays
@@ -102,7 +102,7 @@ def available_memory() -> float:
 
 @dataclass(frozen=True)
 class PlanParams:
-    resolution: int = 64
+    resolution: int = DEFAULT_RESOLUTION
     bases: str = "sun"
     storage: str = "fp32"
     """LB density storage (``foliage lb --storage``): fp16 holds the solver's two fields in 2 bytes per value."""
@@ -112,8 +112,7 @@ class PlanParams:
     reference_paths: int = 1_000_000
 
     def __post_init__(self) -> None:
-        if not (4 <= self.resolution <= 512):
-            raise UsageError(f"--resolution must be between 4 and 512, got {self.resolution}.")
+        check_resolution(self.resolution)
         if self.bases not in ("sun", "all"):
             raise UsageError(f"--bases must be sun or all, got {self.bases!r}.")
         if self.storage not in ("fp32", "fp16"):

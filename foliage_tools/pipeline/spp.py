@@ -57,7 +57,7 @@ from foliage_tools.lighting import gfactor as gf
 from foliage_tools.lighting import raydepth as rd
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.lighting.phase import canopy_bilambertian_phase
-from foliage_tools.params import DensityParams
+from foliage_tools.params import DEFAULT_RESOLUTION, DensityParams, check_resolution
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, density_grid, vdb_path
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.gather import bake_gather, check_gather, resolve_rays
@@ -107,7 +107,7 @@ class SppParams:
 
     optics: LeafOptics
     sun: tuple[float, float] | None = None
-    resolution: int = 64
+    resolution: int = DEFAULT_RESOLUTION
     """Density grid voxels along the longest foliage edge."""
     directions: int = gf.DEFAULT_DIRECTIONS
     """Sample directions for the G-factor and the sky (the paper used 16–22)."""
@@ -163,8 +163,7 @@ class SppParams:
     ``sppIrradiance``. 0: off; None: ``auto`` (pipeline.gather.auto_rays of the traced leaves)."""
 
     def __post_init__(self) -> None:
-        if not (4 <= self.resolution <= 512):
-            raise UsageError(f"--resolution must be between 4 and 512, got {self.resolution}.")
+        check_resolution(self.resolution)
         if self.directions < 2 or self.directions % 2:
             raise UsageError(f"--directions must be an even number >= 2, got {self.directions}.")
         if self.depth not in DEPTH_PATHS:
