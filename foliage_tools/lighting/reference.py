@@ -796,6 +796,10 @@ def _process_hits(
             a_t += w[i, c] * trans[j, c]
             a_a += w[i, c] * absp[j, c]
         total = a_r + a_t + a_a
+        if total <= 0.0:
+            # nothing left to carry: the weight underflowed to zero in every channel (a bounce off a subnormal
+            # reflectance); the event draw below would divide 0 by 0, and there is nothing to deposit
+            continue
         if total >= w_min:
             # expected-value absorption: deposit W(1 - r - t) and go on with the rest
             for c in range(3):
