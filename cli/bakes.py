@@ -277,7 +277,7 @@ def bench_table(scene: Path, s: dict) -> Table:
 @grid_precision_option
 @click.option("--base-extent", type=click.Choice(["leaves", "lattice"]), default="leaves", show_default=True,
               help="Where --bases all stores lbAmbient and lbBase01..18: leaves, only at the lattice nodes the relighting "
-                   "reads (around every leaf: the .vdb then holds 18 % of tree_small's 64^3 nodes, 3.5x smaller; "
+                   "reads (around every leaf: 17.9 % of tree_small's 64^3 nodes, its .vdb 3.6x smaller; "
                    "steele2010 4.2 'we do not store data that will not be accessed'; relit light identical), or "
                    "lattice, every node (for a renderer that samples the bases away from the leaves).")
 @gather_option("LB's scattered light", "primvars:foliage:lb:scattered and lbIndirect (then per leaf)")
