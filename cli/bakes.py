@@ -277,9 +277,10 @@ def bench_table(scene: Path, s: dict) -> Table:
 @grid_precision_option
 @click.option("--base-extent", type=click.Choice(["leaves", "lattice"]), default="leaves", show_default=True,
               help="Where --bases all stores lbAmbient and lbBase01..18: leaves, only at the lattice nodes the relighting "
-                   "reads (around every leaf: 17.9 % of tree_small's 64^3 nodes, its .vdb 3.6x smaller; "
+                   "reads (around every leaf: 17.9 % of tree_small's 64^3 nodes, its .vdb 4.5x smaller, 1.8x at 24^3; "
                    "steele2010 4.2 'we do not store data that will not be accessed'; relit light identical), or "
-                   "lattice, every node (for a renderer that samples the bases away from the leaves).")
+                   "lattice, every node (for a renderer that samples the bases away from the leaves). No effect with "
+                   "--bases sun, whose lbSun keeps every node.")
 @gather_option("LB's scattered light", "primvars:foliage:lb:scattered and lbIndirect (then per leaf)")
 @volume_purpose_option
 @direct_options
@@ -454,7 +455,8 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "G s / (1 - (1 - s) rho), s = the exact slab's once-scattered share at the leaf and rho = the real "
                    "medium's recollision probability over the slab's there, instead of by G (lighting/gfactor.py). It "
                    "matters for bright leaves (albedo near 1), where s is small (in shinya2013's own test, albedo "
-                   "0.95, the exact slab + G on the oak scores 0.065 binned error per order against 0.385 once; README).")
+                   "0.95, the exact slab + G on the oak scores 0.065 binned error per order against 0.385 with G once "
+                   "on the same grid; README 'The later orders').")
 @click.option("--g-resolution", "g_resolution", type=click.IntRange(min=0), default=None,
               help="Measure the G-factor's depths through a coarse leaf-area density grid of this many voxels along the "
                    "longest foliage edge (shinya2013 keeps G on a ~16^3 grid), not from each leaf's own depths. G is "
