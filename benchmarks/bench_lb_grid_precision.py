@@ -69,15 +69,9 @@ def bake(scene: Path, res: int, precision: str, out: Path, extent: str = "lattic
 def read_total(vdb: Path, grid) -> np.ndarray:
     """The 19 grids of ``vdb`` as one (nx, ny, nz, 19, 3) array on the bake's lattice (a grid is read over its active
     bounding box, which may be smaller: placed back by its origin)."""
-    from foliage_tools.scene.vdb import read_grid
+    from foliage_tools.scene.vdb import place_on_lattice, read_grid
 
-    out = np.zeros(tuple(grid.shape) + (len(GRIDS), 3), np.float32)
-    for k, name in enumerate(GRIDS):
-        g = read_grid(vdb, name)
-        lo = np.rint((np.asarray(g.origin) - np.asarray(grid.origin)) / grid.voxel_size).astype(int)
-        sl = tuple(slice(a, a + n) for a, n in zip(lo, g.values.shape[:3]))
-        out[sl + (k,)] = g.values
-    return out
+    return np.stack([place_on_lattice(read_grid(vdb, name), grid.shape, grid.origin).values for name in GRIDS], axis=3)
 
 
 def haar_variants(ref: np.ndarray, thresholds, d: Path):

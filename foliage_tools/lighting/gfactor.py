@@ -334,6 +334,17 @@ def _log_pp_single_scattering(c, length, d0):
 
 
 @njit(cache=True)
+def _face_distance(v, t0, below):
+    """L: optical distance from a point to its slab's face along a direction of cosine ``v`` to up (the top face,
+    ``t0`` above, for v > 0; the bottom one, ``below`` under, for v < 0; inf along the horizon)."""
+    if v > 0.0:
+        return t0 / v
+    if v < 0.0:
+        return below / -v
+    return math.inf
+
+
+@njit(cache=True)
 def _gfactor_kernel(h, vn, mu0, d0, w0, log_phase, weighted, out):
     n_pts, n_dir = h.shape
     frac = np.empty(n_dir)
@@ -345,12 +356,7 @@ def _gfactor_kernel(h, vn, mu0, d0, w0, log_phase, weighted, out):
         top = -math.inf
         for q in range(n_dir):
             v = vn[q]
-            if v > 0.0:
-                length = t0 / v
-            elif v < 0.0:
-                length = below / -v
-            else:
-                length = math.inf
+            length = _face_distance(v, t0, below)
             c = 1.0 - v / mu0
             frac[q] = _present_fraction(c, h[p, q], length)
             acc += frac[q]
@@ -627,14 +633,16 @@ def _once_scattered_share(u, big_u, mu, weights, albedo, phases, total) -> np.nd
     return np.clip(share, 0.0, 1.0)
 
 
-def _slab_lengths(vn, mu0: float, light_depth, light_thickness) -> np.ndarray:
-    """(P, N) L_v: optical distance from each point to the face of its slab toward each direction (``_gfactor_kernel``'s
-    L: the top face for v_n > 0, the bottom one for v_n < 0, inf along the horizon)."""
-    t0 = mu0 * np.asarray(light_depth, dtype=np.float64)[:, None]
-    below = mu0 * (np.asarray(light_thickness, dtype=np.float64) - np.asarray(light_depth, dtype=np.float64))[:, None]
-    v = np.asarray(vn, dtype=np.float64)[None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(v > 0.0, t0 / np.where(v > 0.0, v, 1.0), np.where(v < 0.0, below / np.where(v < 0.0, -v, 1.0), np.inf))
+@njit(cache=True)
+def _slab_lengths(vn, mu0, light_depth, light_thickness):
+    """(P, N) L_v of every point toward every direction (``_face_distance``, as ``_gfactor_kernel`` takes it)."""
+    out = np.empty((light_depth.shape[0], vn.shape[0]))
+    for p in range(light_depth.shape[0]):
+        t0 = mu0 * light_depth[p]
+        below = mu0 * (light_thickness[p] - light_depth[p]) if light_thickness[p] != math.inf else math.inf
+        for q in range(vn.shape[0]):
+            out[p, q] = _face_distance(vn[q], t0, below)
+    return out
 
 
 def recollision_ratio(boundary_depth, vn, mu0: float, light_depth, light_thickness) -> np.ndarray:
@@ -642,7 +650,10 @@ def recollision_ratio(boundary_depth, vn, mu0: float, light_depth, light_thickne
     scattering"); 1 where the slab holds no medium (p_slab = 0)."""
     h = np.asarray(boundary_depth, dtype=np.float64)
     p_real = 1.0 - np.exp(-h).mean(axis=1)
-    p_slab = 1.0 - np.exp(-_slab_lengths(vn, mu0, light_depth, light_thickness)).mean(axis=1)
+    lengths = _slab_lengths(np.ascontiguousarray(vn, dtype=np.float64), float(mu0),
+                            np.ascontiguousarray(light_depth, dtype=np.float64),
+                            np.ascontiguousarray(light_thickness, dtype=np.float64))
+    p_slab = 1.0 - np.exp(-lengths).mean(axis=1)
     ratio = np.divide(p_real, p_slab, out=np.ones_like(p_real), where=p_slab > 0.0)
     return np.clip(ratio, 0.0, 1.0)
 

@@ -152,15 +152,9 @@ def grid_names(path: Path) -> list[str]:
         raise InputError(f"@{path}@: not a readable OpenVDB file ({exc}).") from None
 
 
-def on_lattice(grid: Grid) -> Grid:
-    """``grid`` placed back on the lattice it was baked on, zero where nothing was stored, when its metadata records
-    one (``foliage:latticeShape`` / ``foliage:latticeOrigin``: ``foliage lb --base-extent leaves``); else unchanged.
-
-    :func:`read_grid` returns a grid over its active voxels, which for a sparse grid is smaller than its lattice.
-    """
-    shape, origin = grid.metadata.get("foliage:latticeShape"), grid.metadata.get("foliage:latticeOrigin")
-    if shape is None or origin is None:
-        return grid
+def place_on_lattice(grid: Grid, shape, origin) -> Grid:
+    """``grid`` put on the lattice of ``shape`` nodes whose voxel (0, 0, 0) starts at ``origin`` (same voxel size),
+    zero where the grid holds nothing; ValueError if the grid reaches outside it."""
     shape = tuple(int(n) for n in shape)
     offset = np.rint((np.asarray(grid.origin) - np.asarray(origin, dtype=np.float64)) / grid.voxel_size).astype(np.int64)
     n = np.asarray(grid.values.shape[:3], dtype=np.int64)
@@ -169,6 +163,18 @@ def on_lattice(grid: Grid) -> Grid:
     values = np.zeros(shape + grid.values.shape[3:], dtype=np.float32)
     values[tuple(slice(int(a), int(a + b)) for a, b in zip(offset, n))] = grid.values
     return replace(grid, values=values, origin=(float(origin[0]), float(origin[1]), float(origin[2])))
+
+
+def on_lattice(grid: Grid) -> Grid:
+    """``grid`` placed back on the lattice it was baked on (``place_on_lattice``) when its metadata records one
+    (``foliage:latticeShape`` / ``foliage:latticeOrigin``: ``foliage lb --base-extent leaves``); else unchanged.
+
+    :func:`read_grid` returns a grid over its active voxels, which for a sparse grid is smaller than its lattice.
+    """
+    shape, origin = grid.metadata.get("foliage:latticeShape"), grid.metadata.get("foliage:latticeOrigin")
+    if shape is None or origin is None:
+        return grid
+    return place_on_lattice(grid, shape, origin)
 
 
 def read_grid(path: Path, name: str) -> Grid:

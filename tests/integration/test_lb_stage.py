@@ -136,7 +136,9 @@ def test_base_extent_leaves_stores_the_bases_where_the_relighting_reads_them_and
         files[extent], lattice = out.with_suffix(".vdb"), tuple(proto["resolution"])
         base = read_grid(files[extent], "lbBase07")
         if extent == "leaves":
-            assert 0.05 < proto["base_nodes_kept"] < 0.6  # measured 0.35 at 40 nodes (0.18 at 64)
+            # neither the whole lattice nor nothing (measured 0.35 at 40 nodes, 0.18 at 64): a loose range, what the
+            # extent keeps is checked exactly below, by the stored nodes and by the relit light being the same
+            assert 0.05 < proto["base_nodes_kept"] < 0.6
             stored = np.count_nonzero(np.any(on_lattice(base).values != 0.0, axis=-1))
             assert stored <= round(proto["base_nodes_kept"] * np.prod(lattice))  # nothing stored beyond the kept nodes
             assert tuple(base.metadata["foliage:latticeShape"]) == lattice
@@ -144,7 +146,7 @@ def test_base_extent_leaves_stores_the_bases_where_the_relighting_reads_them_and
             assert proto["base_nodes_kept"] == 1.0 and base.values.shape[:3] == lattice
         _, scene, _ = begin_bake("preview", out, None, None, Silent())
         relit[extent] = load_lb_bases(out, scene, [])
-    assert files["leaves"].stat().st_size < 0.6 * files["lattice"].stat().st_size
+    assert files["leaves"].stat().st_size < 0.6 * files["lattice"].stat().st_size  # the point of the option (loose)
     assert relit["leaves"].keys() == relit["lattice"].keys() and relit["leaves"]
     for mesh, values in relit["lattice"].items():
         assert np.ptp(values) > 0 and np.array_equal(relit["leaves"][mesh], values), mesh
