@@ -1,0 +1,203 @@
+"""Lattice-Boltzmann kernels over whole fields in the block layout that are no sweep (numba).
+
+The per-sweep energy balance (``_balance``), the once-scattered start of a beam (``_once_scattered``) and the
+vector updates of BiCGSTAB and of extrapolation (``_dot``, ``_axpy_norm``, ``_update_xr``, ``_extrapolate``,
+``_p_update``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NAXIAL_PAIRS, NQ
+from foliage_tools.lighting.storage import convert, load
+
+
+@njit(parallel=True, cache=True)
+def _balance(f, rho, rhod, mat, A, sig_a, inflow_mask, wq, pw, cq, use_src):  # pragma: no cover - compiled
+    """Per right-hand side (C, B): inflow, outflow and absorbed power of one sweep from f, in float64.
+
+    f in the block layout of ``_Operator``: node (x, y, z) at f[x, y // G, :, :, (y % G) * nz + z].
+    Power is ``sum_i wq_i f_i`` (wq_i = 1 / |c_i| on the ``ordinates`` lattice, 1 on ``geist2008``:
+    ``power_weights``). With ``use_src`` the inflow includes the beams' first-collision source
+    s_i = cq[m, c, i, b] pw[x, y // G, c, ((y % G) nz + z) B + b] (``_Operator``).
+    """
+    nx, nb, nq, C, gnz, B = f.shape
+    ny = rho.shape[1]
+    nz = rho.shape[2]
+    G = gnz // nz
+    inflow = np.zeros((nx, C, B))
+    outflow = np.zeros((nx, C, B))
+    absorbed = np.zeros((nx, C, B))
+    for x in prange(nx):
+        for y in range(ny):
+            yb = y // G
+            for z in range(nz):
+                zb = (y % G) * nz + z
+                p = rho[x, y, z]
+                pd = rhod[x, y, z]
+                m = mat[x, y, z]
+                boundary = x == 0 or y == 0 or z == 0 or x == nx - 1 or y == ny - 1 or z == nz - 1
+                for c in range(C):
+                    for b in range(B):
+                        tot = 0.0
+                        for j in range(nq):
+                            pj = p if j < 2 * NAXIAL_PAIRS else pd
+                            tot += pj * wq[j] * load(f[x, yb, j, c, zb, b])
+                        absorbed[x, c, b] += sig_a[m, c] * tot  # moved into f_0 (geist2008 eq. 5), then removed
+                        pnode = float(pw[x, yb, c, zb * B + b]) if use_src else 0.0
+                        if use_src:
+                            for i in range(nq):
+                                inflow[x, c, b] += wq[i] * cq[m, c, i, b] * pnode
+                        if not boundary:
+                            continue
+                        for i in range(nq):
+                            if inflow_mask[x, y, z, i]:
+                                inflow[x, c, b] += wq[i] * load(f[x, yb, i, c, zb, b])
+                            tx = x + _CX[i]
+                            ty = y + _CY[i]
+                            tz = z + _CZ[i]
+                            if 0 <= tx < nx and 0 <= ty < ny and 0 <= tz < nz:
+                                continue
+                            h = float(load(f[x, yb, i, c, zb, b]))
+                            if p > 0:
+                                s = 0.0
+                                for j in range(nq):
+                                    pj = p if j < 2 * NAXIAL_PAIRS else pd
+                                    s += A[m, c, i, j] * pj * load(f[x, yb, j, c, zb, b])
+                                h += s
+                            if use_src:
+                                h += cq[m, c, i, b] * pnode
+                            outflow[x, c, b] += wq[i] * h
+    return inflow.sum(axis=0), outflow.sum(axis=0), absorbed.sum(axis=0)
+
+
+@njit(parallel=True, cache=True)
+def _once_scattered(f, att_a, att_d, power, cq, mat, ks, G):  # pragma: no cover - compiled
+    """f[., q, ., ., k] for the beam right-hand sides ks: the first-collision source carried along each lattice line.
+
+    The steady state of f_q(r) = f_q(r - c_q) att_q(r - c_q) + s_q(r - c_q) (0 in inflow slots), s_q =
+    cq[m, c, q, k] power[r, k, c], built in the order of the line (one pass per direction, exact for
+    light scattered once); att_a / att_d: the per-step survival of axial / non-axial steps (nx, ny, nz, C).
+    f in the block layout of ``_Operator``; directions in parallel (each writes only its own slots).
+    """
+    nx, ny, nz, C = att_a.shape
+    for q in prange(NQ):
+        cx, cy, cz = _CX[q], _CY[q], _CZ[q]
+        att = att_a if q < 2 * NAXIAL_PAIRS else att_d
+        for a in range(nx):
+            x = a if cx >= 0 else nx - 1 - a
+            for b in range(ny):
+                y = b if cy >= 0 else ny - 1 - b
+                for e in range(nz):
+                    z = e if cz >= 0 else nz - 1 - e
+                    ux, uy, uz = x - cx, y - cy, z - cz
+                    if ux < 0 or ux >= nx or uy < 0 or uy >= ny or uz < 0 or uz >= nz:
+                        for c in range(C):
+                            for k in ks:
+                                f[x, y // G, q, c, (y % G) * nz + z, k] = 0.0
+                    else:
+                        m = mat[ux, uy, uz]
+                        for c in range(C):
+                            for k in ks:
+                                v = load(f[ux, uy // G, q, c, (uy % G) * nz + uz, k]) * att[ux, uy, uz, c]
+                                f[x, y // G, q, c, (y % G) * nz + z, k] = convert(v + cq[m, c, q, k] * power[ux, uy, uz, k, c], f)
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _dot(a, b, part):  # pragma: no cover - compiled
+    """part[x, c, l] = sum over (y, i) of a*b; a, b : (nx, M, C, L)."""
+    nx, M, C, L = a.shape
+    for x in prange(nx):
+        for c in range(C):
+            p = part[x, c]
+            for l in range(L):
+                p[l] = 0.0
+            for k in range(M):
+                u = a[x, k, c]
+                v = b[x, k, c]
+                for l in range(L):
+                    p[l] += u[l] * v[l]
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _axpy_norm(y, alpha, x_, part):  # pragma: no cover - compiled
+    """y <- y + alpha * x (alpha per (c, l)), with partial sums of y.y."""
+    nx, M, C, L = y.shape
+    for x in prange(nx):
+        for c in range(C):
+            q = part[x, c]
+            al = alpha[c]
+            for l in range(L):
+                q[l] = 0.0
+            for k in range(M):
+                yy = y[x, k, c]
+                xx = x_[x, k, c]
+                for l in range(L):
+                    w = yy[l] + al[l] * xx[l]
+                    yy[l] = w
+                    q[l] += w * w
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _update_xr(xv, alpha, p, omega, r, t, rhat, part_xx, part_rr, part_hr):  # pragma: no cover - compiled
+    """x <- x + alpha p + omega s and r <- s - omega t (r holds s), with partial sums of x.x, r.r, rhat.r."""
+    nx, M, C, L = xv.shape
+    for x in prange(nx):
+        for c in range(C):
+            q1 = part_xx[x, c]
+            q2 = part_rr[x, c]
+            q3 = part_hr[x, c]
+            al = alpha[c]
+            om = omega[c]
+            for l in range(L):
+                q1[l] = 0.0
+                q2[l] = 0.0
+                q3[l] = 0.0
+            for k in range(M):
+                xx = xv[x, k, c]
+                pp = p[x, k, c]
+                rr = r[x, k, c]
+                tt = t[x, k, c]
+                hh = rhat[x, k, c]
+                for l in range(L):
+                    sv = rr[l]
+                    w = xx[l] + al[l] * pp[l] + om[l] * sv
+                    xx[l] = w
+                    q1[l] += w * w
+                    u = sv - om[l] * tt[l]
+                    rr[l] = u
+                    q2[l] += u * u
+                    q3[l] += hh[l] * u
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _extrapolate(f, prev, factor):  # pragma: no cover - compiled
+    """f <- f + factor (f - prev), factor per (c, l)."""
+    nx, M, C, L = f.shape
+    for x in prange(nx):
+        for c in range(C):
+            fa = factor[c]
+            for k in range(M):
+                ff = f[x, k, c]
+                pp = prev[x, k, c]
+                for l in range(L):
+                    v = load(ff[l])
+                    ff[l] = convert(v + fa[l] * (v - load(pp[l])), ff)
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _p_update(p, r, v, beta, omega):  # pragma: no cover - compiled
+    """p <- r + beta (p - omega v)."""
+    nx, M, C, L = p.shape
+    for x in prange(nx):
+        for c in range(C):
+            be = beta[c]
+            om = omega[c]
+            for k in range(M):
+                pp = p[x, k, c]
+                rr = r[x, k, c]
+                vv = v[x, k, c]
+                for l in range(L):
+                    pp[l] = rr[l] + be[l] * (pp[l] - om[l] * vv[l])

@@ -1,0 +1,269 @@
+"""The steady-state solvers of the lattice-Boltzmann lighting: plain sweeps, extrapolation, BiCGSTAB and ``solve``.
+
+The package docstring (``lighting.lb``, "Steady state") describes them and what the residual means;
+``memory_bytes`` is what a solve holds.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import numpy as np
+
+from foliage_tools.lighting.lb.directions import NQ
+from foliage_tools.lighting.lb.kernels_field import _axpy_norm, _extrapolate, _p_update, _update_xr
+from foliage_tools.lighting.lb.layout import _Operator, _safe_div
+from foliage_tools.lighting.lb.problem import LBNumericalError, LBParams, LBProblem, LBResult
+
+#: The package's logger: its messages keep the name ``foliage_tools.lighting.lb`` they had when it was one module.
+log = logging.getLogger(__package__)
+
+
+#: Largest per-sweep ratio q an extrapolation jump f + (f - f_prev) q / (1 - q) uses (a jump of at most 199x the
+#: last change: a larger one, from a ratio that only looked settled, once overflowed float32 at 64^3 with 18 bases).
+_MAX_EXTRAPOLATION_Q = 0.995
+
+
+def _iterate(
+    op: _Operator,
+    f: np.ndarray,
+    tol: float,
+    budget: int,
+    every: int,
+    history: list,
+    switch_after: int | None,
+    *,
+    extrapolate: bool = False,
+    warmup: int | None = None,
+):
+    """Plain sweeps from f, residual measured every ``every`` sweeps.
+
+    Returns (f, sweeps, residuals (C, K), stopped_to_switch).
+
+    The warm-up (default: the longest edge, at least 16 sweeps) is the time
+    light needs to cross the grid, during which the residual falls slowly
+    whatever the medium. After it:
+
+    * ``switch_after``: stop when the contraction rate q measured over the
+      last >= 8 sweeps predicts more than ``switch_after`` sweeps to go.
+    * ``extrapolate``: measure the residual every sweep; when three consecutive
+      per-sweep ratios q of a right-hand side agree to 1e-3, jump that
+      right-hand side to ``f + (f - f_prev) q / (1 - q)``, the sum of the
+      remaining geometric series of its slowest mode (Lyusternik
+      extrapolation). The stopping test is unchanged, so a poor jump can only
+      cost sweeps, never fake convergence.
+    """
+    out = f.copy()
+    res = np.full((op.C, op.K), np.inf)
+    warm = max(16, op.nx, op.ny, op.nz) if warmup is None else warmup
+    checks: list[tuple[int, float]] = []
+    prev_res: np.ndarray | None = None
+    ratios: list[np.ndarray] = []
+    allowed = np.ones((op.C, op.K), bool)  # right-hand sides extrapolation may still jump
+    jumped: np.ndarray | None = None  # residual just before the last jump
+    for t in range(1, budget + 1):
+        every_sweep = extrapolate and t >= warm
+        check = every_sweep or t % every == 0 or t == budget
+        r = op.sweep(f, out, residual=check)
+        f, out = out, f  # f = f_t, out = f_{t-1}
+        if not check:
+            prev_res = None
+            continue
+        assert r is not None  # swept with residual=check
+        res = r
+        if not np.all(np.isfinite(res)):
+            raise LBNumericalError(
+                "the lattice field became non-finite"
+                + (" after an extrapolation jump; use the solver 'iterate' or 'bicgstab'" if extrapolate else "")
+                + f" (sweep {t}). This is a bug if it happens with plain iteration: please report it with the input."
+            )
+        now = float(res.max())
+        history.append(now)
+        checks.append((t, now))
+        if now < tol:
+            return f, t, res, False
+        if every_sweep:
+            if jumped is not None:
+                # a jump that did not lower the residual says the one-mode model is wrong here: stop jumping
+                allowed &= ~(res > jumped)
+                jumped = None
+            if prev_res is not None:
+                ratios = [*ratios[-2:], _safe_div(res, prev_res)]
+            prev_res = res
+            if len(ratios) == 3:
+                q = np.stack(ratios)
+                ok = allowed & (q.max(axis=0) < 1.0) & (q.min(axis=0) > 0.0) & (q.max(axis=0) - q.min(axis=0) < 1e-3)
+                if ok.any():
+                    qq = np.minimum(q[-1], _MAX_EXTRAPOLATION_Q)
+                    _extrapolate(op.vec(f), op.vec(out), op.expand(np.where(ok, qq / (1.0 - qq), 0.0)))
+                    ratios, prev_res, jumped = [], None, np.where(ok, res, np.inf)
+        if switch_after is not None and t >= warm:
+            back = [c for c in checks if c[0] <= t - 8]
+            if back:
+                t_prev, prev = back[-1]
+                q1 = (now / prev) ** (1.0 / (t - t_prev)) if prev > 0 else 0.0
+                if q1 >= 1.0 or math.log(tol / now) / math.log(q1) > switch_after:
+                    return f, t, res, True
+    return f, budget, res, False
+
+
+def _bicgstab(op: _Operator, x: np.ndarray, tol: float, budget: int, history: list):
+    """BiCGSTAB on (I - T) x = beta for all right-hand sides in lock-step (van der Vorst 1992).
+
+    ``x`` holds beta in its inflow slots; every Krylov vector has zero inflow
+    slots, so the kernel (which never writes inflow slots) applies T to them
+    directly. Returns (x, sweeps, converged_flags (C, K)).
+    """
+    C, K = op.C, op.K
+    sweeps = 0
+    r = op.zeros()
+    op.sweep(x, r, residual=False)  # T x (+ propagation of the inflow held in x)
+    sweeps += 1
+    r -= x
+    op.set_inflow(r, zero=True)  # r = T x + beta - x: zero in the inflow slots
+    rhat = r.copy()
+    p = op.zeros()
+    v = op.zeros()
+    t = op.zeros()
+    ones = np.ones((C, K))
+    rho_old, alpha, omega_ = ones.copy(), ones.copy(), ones.copy()
+    rr = op.dot(r, r)
+    xx = op.dot(x, x)
+    hr = rr.copy()
+    done = np.sqrt(_safe_div(rr, xx)) < tol
+    V = op.vec
+    pa, pb, pc = op._parts
+    while sweeps + 2 <= budget and not done.all():
+        rho_new = hr
+        beta = _safe_div(rho_new, rho_old) * _safe_div(alpha, omega_)
+        beta[done] = 0.0
+        _p_update(V(p), V(r), V(v), op.expand(beta), op.expand(omega_))
+        hv, _ = op.apply(p, v, rhat)  # v = (I - T) p, rhat . v
+        sweeps += 1
+        alpha = _safe_div(rho_new, hv)
+        alpha[done] = 0.0
+        _axpy_norm(V(r), op.expand(-alpha), V(v), pa)  # r <- s = r - alpha v
+        ts, tt = op.apply(r, t, r)  # t = (I - T) s, t . s, t . t
+        sweeps += 1
+        omega_ = _safe_div(ts, tt)
+        omega_[done] = 0.0
+        # x <- x + alpha p + omega s, r <- s - omega t
+        _update_xr(V(x), op.expand(alpha), V(p), op.expand(omega_), V(r), V(t), V(rhat), pa, pb, pc)
+        xx, rr, hr = op.reduce(pa), op.reduce(pb), op.reduce(pc)
+        rho_old = rho_new
+        res = np.sqrt(_safe_div(rr, xx))
+        done |= res < tol
+        history.append(float(res.max()))
+        # breakdown (rhat . r ~ 0 or omega = 0): restart that right-hand side with rhat = r
+        bad = ~done & ((np.abs(hr) <= 1e-12 * rr) | (omega_ == 0.0))
+        for c, k in zip(*np.nonzero(bad)):
+            rhat[:, :, :, c, :, k] = r[:, :, :, c, :, k]
+            p[:, :, :, c, :, k] = 0.0
+            v[:, :, :, c, :, k] = 0.0
+            hr[c, k] = rr[c, k]
+            rho_old[c, k] = alpha[c, k] = omega_[c, k] = 1.0
+    return x, sweeps, done
+
+
+# LBParams is a frozen dataclass: one shared default is safe (ruff sees that only within its own module)
+def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noqa: B008
+    """Steady state of the lattice for every boundary condition and channel of ``problem``.
+
+    Returns energy density u = sum_i f_i per node (and f if asked), the
+    residual, sweeps, timing and the per-sweep energy balance; see the package
+    docstring (``lighting.lb``) for the solvers and units.
+    """
+    t0 = time.perf_counter()
+    op = _Operator(problem, params.dtype, params.storage)
+    nrhs = op.C * op.K
+    tol = params.tolerance
+    history: list[float] = []
+    f = op.unscattered(problem) if params.initial == "unscattered" else op.initial()
+    once = None
+    if op.beams is not None:  # the lattice's once-scattered light: the unscattered start for a beam
+        once = op.energy(f if params.initial == "unscattered" else op.unscattered(problem))
+    sweeps = 0
+    used: list[str] = []
+    t_loop = time.perf_counter()
+    res = np.full((op.C, op.K), np.inf)
+    switched = False
+    if params.solver in ("iterate", "auto", "extrapolate"):
+        switch = params.switch_sweeps if params.solver == "auto" else None
+        extra = params.solver == "extrapolate"
+        f, n, res, switched = _iterate(op, f, tol, params.max_sweeps, params.check_every, history, switch, extrapolate=extra)
+        sweeps += n
+        used.append("extrapolate" if extra else "iterate")
+    krylov = params.solver == "bicgstab"
+    if switched:  # auto, and plain iteration is slow
+        krylov = 6 * op.field_bytes <= params.memory_limit and params.storage == "fp32"
+        log.info("lb solve: plain sweeps converge slowly after %d (residual %.2e); switching to %s", sweeps,
+                 float(res.max()), "BiCGSTAB" if krylov else "extrapolated sweeps (BiCGSTAB would not fit or needs fp32)")
+        if not krylov:
+            f, n, res, _ = _iterate(
+                op, f, tol, params.max_sweeps - sweeps, params.check_every, history, None, extrapolate=True, warmup=0
+            )
+            sweeps += n
+            used.append("extrapolate")
+    if krylov:
+        used.append("bicgstab")
+        for _attempt in range(4):
+            budget = params.max_sweeps - sweeps - 1
+            if budget < 3:
+                break
+            f, n, _ = _bicgstab(op, f, tol, budget, history)
+            sweeps += n
+            # the reported residual is always that of a plain sweep from the result
+            out = f.copy()
+            res = op.sweep(f, out, residual=True)
+            sweeps += 1
+            f = out
+            if res.max() < tol:
+                break
+        if not np.all(np.isfinite(res)):  # max_sweeps leaves no room for a BiCGSTAB step: plain sweeps
+            f, n, res, _ = _iterate(op, f, tol, max(params.max_sweeps - sweeps, 1), params.check_every, history, None)
+            sweeps += n
+            used.append("iterate")
+    loop_seconds = time.perf_counter() - t_loop
+    log.debug("lb solve: %s nodes x %d rhs, %s, %d sweeps, residual %.2e (tolerance %.1e), %.2f s", f"{op.nodes:,}", nrhs,
+              "+".join(used), sweeps, float(res.max()), tol, loop_seconds)
+    if not np.all(np.isfinite(res)):
+        raise LBNumericalError(f"the lattice solve ended with a non-finite residual (solver {'+'.join(used)}); "
+                               "use the solver 'iterate', and please report the input.")
+    inflow, outflow, absorbed = op.balance(f)
+    energy = op.energy(f)  # (nx, ny, nz, K, C)
+    if op.beams is not None:  # a beam's lattice field is its scattered light: add the exact unscattered beam
+        energy += op.beams.direct.astype(energy.dtype)
+    full = op.from_row(f) if params.keep_f else None
+    return LBResult(
+        energy_density=energy,
+        f=full,
+        boundaries=tuple(b.name for b in problem.boundaries),
+        iterations=sweeps,
+        residual=float(res.max()),
+        residuals=res.T.copy(),
+        converged=bool(res.max() < tol),
+        seconds=time.perf_counter() - t0,
+        solver="+".join(used),
+        mlups=op.nodes * nrhs * sweeps / max(loop_seconds, 1e-12) / 1e6,
+        nrhs=nrhs,
+        inflow=inflow.T.copy(),
+        outflow=outflow.T.copy(),
+        absorbed=absorbed.T.copy(),
+        history=tuple(history),
+        beam_direct=None if op.beams is None else op.beams.direct,
+        beam_power=None if op.beams is None else op.beams.power,
+        once_scattered=once,
+    )
+
+
+#: Fields of 18 float32 directions (72 bytes per node and right-hand side) plain iteration holds: the
+#: state and its update, plus the outputs and temporaries of the bake (~0.3 field).
+PLAIN_ITERATION_FIELDS = 2.3
+
+
+def memory_bytes(shape, nrhs: int, fields: float = PLAIN_ITERATION_FIELDS, value_bytes: int = 4) -> float:
+    """Bytes a solve on a grid of ``shape`` with ``nrhs`` right-hand sides holds (``fields`` fields of
+    ``value_bytes`` per density: 4 for ``storage="fp32"``, 2 for ``"fp16"``)."""
+    return float(np.prod(shape)) * nrhs * NQ * value_bytes * fields
