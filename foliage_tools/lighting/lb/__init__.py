@@ -185,6 +185,18 @@ solvers. This residual is not the error, which is about residual / (1 - q):
 on a 32^3 dense sphere at tolerance 1e-6 the largest node error was 2e-5
 (sigma_a = 0.1) to 2e-4 (0.001) for plain iteration and 3-4x smaller for
 BiCGSTAB. Tighten the tolerance (float64 for < 1e-7) when the error matters.
+
+Modules
+-------
+One per concept (issue #20); this package re-exports what callers use.
+``boundaries`` (the right-hand sides), ``problem`` (``LBProblem``, ``LBParams``,
+``LBResult``, the errors), ``directions`` (the 18 stored directions,
+``power_weights``), the numba kernels ``kernels_collide`` (parity-split
+collision), ``kernels_stream`` (streaming pieces), ``kernels_sweep`` (the fused
+sweeps) and ``kernels_field`` (balance, once-scattered start, vector updates),
+``layout`` (``_Operator``), ``solvers`` (``solve``, ``memory_bytes``),
+``unscattered`` (``unscattered_energy``), ``beam`` (``beam_fields``), ``oracle``
+(``_reference_step``) and ``irradiance`` (leaf irradiance, ``relight``).
 """
 
 from __future__ import annotations
