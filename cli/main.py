@@ -143,9 +143,8 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
 @SCENE
 @OUT
 @click.option("--voxel-size", type=float, default=None, help="Voxel edge length in stage units (exclusive with --resolution).")
-@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=None,
-              help=f"Voxels along the longest edge of each prototype's foliage bounds [default: {DEFAULT_RESOLUTION}; "
-                   f"{RESOLUTION_RANGE[0]}-{RESOLUTION_RANGE[1]}].")
+@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True,
+              help="Voxels along the longest edge of each prototype's foliage bounds (exclusive with --voxel-size).")
 @click.option("--method", type=click.Choice(["area", "subgrid"]), default="area", show_default=True,
               help="area: exact leaf area per voxel / voxel volume (leaf-area density, 1/unit). "
                    "subgrid: geist2008 sec. 4.2 heuristic, fraction of 27 sub-cells touched (0..1).")
@@ -167,9 +166,13 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
     from foliage_tools.params import DensityParams
     from foliage_tools.pipeline.density import run_density
 
+    given = click.get_current_context().get_parameter_source("resolution") != click.core.ParameterSource.DEFAULT
+
     def body() -> int:
         setup_logging(verbose, quiet)
-        params = DensityParams(voxel_size=voxel_size, resolution=resolution, method=method, volume_purpose=volume_purpose)
+        # --resolution's default gives way to --voxel-size; both given is DensityParams' usage error
+        params = DensityParams(voxel_size=voxel_size, resolution=resolution if given or voxel_size is None else None,
+                               method=method, volume_purpose=volume_purpose)
 
         def render(report) -> None:
             table = Table(title=f"density ({method}) in {report.seconds:.2f} s")
