@@ -326,7 +326,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
             for p in report.stats["prototypes"]:
                 table.add_row(escape(p["path"]), "×".join(map(str, p["resolution"])), p["solver"], str(p["iterations"]),
                               f"{p['residual']:.1e}", f"{p['mlups']:.1f}", f"{p['e_scattered_mean'][1]:.4g}")
-            console.stdout.print(table)
+            console.print_table(table)
 
         return execute(lambda progress: run_lb(scene, out, params, progress=progress), as_json=as_json, quiet=quiet, render=render)
 
@@ -529,7 +529,7 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
                 e = p["e_scattered_mean"]
                 table.add_row(escape(p["path"]), str(p["leaves"]), str(p["cells"]), f"{p['gfactor_mean']:.3f}",
                               f"{e['spp'][1]:.4g}", f"{e['sppg'][1]:.4g}" if "sppg" in e else "-")
-            console.stdout.print(table)
+            console.print_table(table)
 
         return execute(lambda progress: run_spp(scene, out, params, progress=progress), as_json=as_json, quiet=quiet, render=render)
 

@@ -184,7 +184,7 @@ def _render(report, dry_run: bool) -> None:
             table.add_column(col, overflow="fold")
         for name, e in s["assets"].items():
             table.add_row(escape(name), e["action"], escape(e["reason"]))
-        console.stdout.print(table)
+        console.print_table(table)
         return
     if s["workers"] is None:
         where = "no cluster (nothing to bake)"
@@ -197,5 +197,5 @@ def _render(report, dry_run: bool) -> None:
     for name, e in s["assets"].items():
         outcome = e["error"]["message"] if e.get("error") else next((o for o in e["outputs"] if o.endswith((".lb.usda", ".lb.usdc"))), "")
         table.add_row(escape(name), e["status"], f"{e['seconds']:.1f}", escape(outcome))
-    console.stdout.print(table)
+    console.print_table(table)
     console.stdout.print(f"wrote {report.outputs[-1]}", highlight=False, soft_wrap=True)

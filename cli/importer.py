@@ -67,7 +67,7 @@ def import_model(model: Path, out: Path, up_axis: str, meters_per_unit: float, l
             for p in report.stats["parts"]:
                 table.add_row(escape(p["prim"]), escape(p["name"]), "leaves" if p["leaf"] else "wood", str(p["faces_read"]),
                               str(p["triangles"]), str(p["points"]))
-            console.stdout.print(table)
+            console.print_table(table)
 
         return execute(lambda progress: run_import(model, out, params, progress=progress), as_json=as_json, quiet=quiet,
                        render=render)

@@ -82,7 +82,7 @@ def inspect(scene: Path, as_json: bool, quiet: bool, verbose: int) -> None:
                     escape(p["path"]), p["kind"], str(p["instances"]), str(p["leaves"]), str(p["leaf_triangles"]),
                     str(p["wood_triangles"]), f"{p['leaf_area']:.4g}", size,
                 )
-            console.stdout.print(table)
+            console.print_table(table)
             console.stdout.print(f"{s['instances']} instance(s), {s['leaves_total']} leaves placed in the world")
             if s["lights"]:
                 for light in s["lights"]:
@@ -143,9 +143,8 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
 @SCENE
 @OUT
 @click.option("--voxel-size", type=float, default=None, help="Voxel edge length in stage units (exclusive with --resolution).")
-@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=None,
-              help=f"Voxels along the longest edge of each prototype's foliage bounds [default: {DEFAULT_RESOLUTION}; "
-                   f"{RESOLUTION_RANGE[0]}-{RESOLUTION_RANGE[1]}].")
+@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True,
+              help="Voxels along the longest edge of each prototype's foliage bounds (exclusive with --voxel-size).")
 @click.option("--method", type=click.Choice(["area", "subgrid"]), default="area", show_default=True,
               help="area: exact leaf area per voxel / voxel volume (leaf-area density, 1/unit). "
                    "subgrid: geist2008 sec. 4.2 heuristic, fraction of 27 sub-cells touched (0..1).")
@@ -167,9 +166,13 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
     from foliage_tools.params import DensityParams
     from foliage_tools.pipeline.density import run_density
 
+    given = click.get_current_context().get_parameter_source("resolution") != click.core.ParameterSource.DEFAULT
+
     def body() -> int:
         setup_logging(verbose, quiet)
-        params = DensityParams(voxel_size=voxel_size, resolution=resolution, method=method, volume_purpose=volume_purpose)
+        # --resolution's default gives way to --voxel-size; both given is DensityParams' usage error
+        params = DensityParams(voxel_size=voxel_size, resolution=resolution if given or voxel_size is None else None,
+                               method=method, volume_purpose=volume_purpose)
 
         def render(report) -> None:
             table = Table(title=f"density ({method}) in {report.seconds:.2f} s")
@@ -179,7 +182,7 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
                 err = "n/a" if p["area_rel_error"] is None else f"{p['area_rel_error']:.1e}"
                 table.add_row(p["path"], str(p["leaves"]), "×".join(map(str, p["shape"])), f"{p['voxel_size']:.4g}",
                               str(p["active_voxels"]), err, f"{p['seconds']:.2f}")
-            console.stdout.print(table)
+            console.print_table(table)
 
         return execute(lambda progress: run_density(scene, out, params, progress=progress), as_json=as_json, quiet=quiet, render=render)
 
@@ -232,20 +235,21 @@ def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, ray
                 table.add_row(escape(p["path"]), str(p["instances"]), str(p["leaves"]), "x".join(map(str, p["grid"])),
                               str(p["lb_rhs"]), str(p["lb_sweeps_estimate"]), f"{p['lb_memory_bytes'] / 1e9:.2f} GB",
                               p["smax_path"])
-            console.stdout.print(table)
+            console.print_table(table)
             t = s["seconds_estimate"]
             times = Table(title="estimated seconds (rates measured on a 2-core machine; scale to yours)")
             for col in ("density", "smax", "spp", "lb", "direct (rays; once per bake)", "reference", "LB peak memory"):
                 times.add_column(col, justify="right")
             times.add_row(*(f"{t[k]:.3g}" for k in ("density", "smax", "spp", "lb", "direct", "reference")),
                           f"{s['peak_memory_bytes'] / 1e9:.2f} GB")
-            console.stdout.print(times)
+            console.print_table(times)
+            piped = not console.stdout.is_terminal  # a line per sentence in a pipe or a log, as the tables keep their rows
             k = s["gather_rays_per_leaf"]
             who = "spp and lb include" if s["bases"] == "sun" else "spp includes"  # auto does not gather --bases all
             console.stdout.print(f"{who} the final gather (--gather auto): {k} rays per leaf, "
                                  f"{s['gather_rays']:,} rays" if k else
                                  "--gather auto is off for this many leaves (spp and lb keep their volume method's light)",
-                                 highlight=False)
+                                 highlight=False, soft_wrap=piped)
             if s["forest"] is not None:
                 f = s["forest"]
                 lone = s["traced"] == "lone trees"
@@ -258,7 +262,8 @@ def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, ray
                 console.stdout.print(
                     f"forest: {s['instances']:,} instances, {s['world_triangles']:,} placed triangles; {rays}; the "
                     f"forest lattice has {f['nodes']:,} nodes (~{f['seconds_estimate_per_stage']:.3g} s, once per "
-                    f"bake); the reference would hold {s['reference_memory_bytes'] / 1e9:.2f} GB (it traces {how})")
+                    f"bake); the reference would hold {s['reference_memory_bytes'] / 1e9:.2f} GB (it traces {how})",
+                    highlight=False, soft_wrap=piped)
 
         return execute(lambda progress: do_plan(scene, params), as_json=as_json, quiet=quiet, render=render)
 

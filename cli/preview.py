@@ -108,7 +108,7 @@ def preview(scene: Path, out: Path, method: str, compare: str | None, error_imag
             for name, m in s["per_method"].items():
                 rms = m.get("rel_rms_vs_reference")
                 table.add_row(name, f"{m['tree_coverage']:.1%}", f"{m['mean_tree_luminance']:.4g}", "" if rms is None else f"{rms:.3f}")
-            console.stdout.print(table)
+            console.print_table(table)
             sun_info = s["sun"]
             console.stdout.print(f"sun from {sun_info['source']}: azimuth {sun_info['azimuth']:.1f}°, elevation {sun_info['elevation']:.1f}°", highlight=False)
             outs = report.outputs

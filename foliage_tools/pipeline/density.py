@@ -13,7 +13,7 @@ import numpy as np
 from foliage_tools import __version__
 from foliage_tools.errors import InputError, UsageError
 from foliage_tools.geometry.voxelize import GridSpec, area_per_voxel, grid_for_bounds, mark_wood_fraction, subgrid_coverage
-from foliage_tools.params import DensityParams
+from foliage_tools.params import RESOLUTION_RANGE, DensityParams
 from foliage_tools.pipeline.leafdata import native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.scene.model import Prototype, Scene
@@ -51,6 +51,8 @@ def density_grid(proto: Prototype, params: DensityParams) -> GridSpec:
     """The grid every bake voxelizes ``proto`` on: its foliage bounds plus the margin, refused above MAX_CELLS."""
     lo, hi = proto.bounds(leaves_only=True)
     grid = grid_for_bounds(lo, hi, margin_voxels=params.margin_voxels, **params.grid_options())
+    if params.voxel_size is not None:  # the grid --resolution N would give is bounded; so is the one a voxel size gives
+        _check_voxel_size(proto, params, grid, float(np.max(np.asarray(hi) - np.asarray(lo))))
     cells = int(np.prod(grid.shape))
     if cells > MAX_CELLS:
         raise UsageError(
@@ -58,6 +60,23 @@ def density_grid(proto: Prototype, params: DensityParams) -> GridSpec:
             "use a larger --voxel-size or a lower --resolution."
         )
     return grid
+
+
+def _check_voxel_size(proto: Prototype, params: DensityParams, grid: GridSpec, longest: float) -> None:
+    """UsageError when ``--voxel-size`` puts more voxels along the longest foliage edge than ``--resolution`` may
+    (``RESOLUTION_RANGE``): a new user's trial allocated ~9 GB for a 598x609x1005 grid before this check."""
+    lo, hi = RESOLUTION_RANGE
+    n = max(grid.shape) - 2 * params.margin_voxels  # the voxels across the foliage, as --resolution counts them
+    if n <= hi:
+        return
+    smallest = float(f"{longest / hi:.2g}")
+    smallest = smallest if longest / smallest <= hi else float(f"{smallest * 1.05:.2g}")  # rounded up, never below
+    raise UsageError(
+        f"--voxel-size {params.voxel_size:g} makes too large a grid for prototype <{proto.path}>: its foliage is {longest:.4g} "
+        f"units across, so the grid would be {'x'.join(map(str, grid.shape))} voxels, resolution {n} along the longest "
+        f"edge, above the limit of {hi} (--resolution {lo}-{hi}). Give --voxel-size {smallest:g} or larger, or "
+        f"--resolution N instead (`foliage plan` shows the grid and memory of a resolution)."
+    )
 
 
 def compute_density(proto: Prototype, params: DensityParams) -> DensityResult:
@@ -210,6 +229,8 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
     edits = LayerEdits(primvars=leaf_id_edits(scene, report.warnings))
     protos = []
     baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
+    for _, proto in baked:  # every grid's size is checked before any is allocated
+        density_grid(proto, params)
     progress.step(f"voxelizing {len(baked)} prototype(s) ({params.method})", total=len(baked))
     for i, proto in baked:
         res = compute_density(proto, params)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from foliage_tools.params import DensityParams
+from foliage_tools.params import RESOLUTION_RANGE, DensityParams
 from foliage_tools.pipeline.density import run_density
 from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.vdb import read_grid
@@ -158,3 +158,23 @@ def test_forest_bakes_its_shared_prototype_once(tmp_path):
     stage = Usd.Stage.Open(str(tmp_path / "f.usda"))
     assert UsdVol.Volume(stage.GetPrimAtPath(protos[0]["volume"]))
     assert foliage("validate", tmp_path / "f.usda").returncode == 0
+
+
+def test_a_voxel_size_finer_than_the_resolution_limit_is_refused_before_any_grid(tmp_path, simple_tree):
+    """A new user's trial: --voxel-size 0.004 on the example tree allocated a 598x609x666 grid (9.3 GB resident,
+    64 s); a voxel size is held to the --resolution limit (params.RESOLUTION_RANGE) along the longest foliage edge."""
+    lo, hi = RESOLUTION_RANGE
+    out = tmp_path / "d.usda"
+    # the two cards span 0.6 units in x: ~600 voxels across at 0.001 (a 12M-voxel grid, which was accepted)
+    r = foliage("density", simple_tree, "-o", out, "--voxel-size", "0.001")
+    assert r.returncode == 2, r.stderr
+    message = " ".join(r.stderr.split())
+    for text in ("--voxel-size 0.001", "</Tree>", "resolution 60", f"the limit of {hi}", f"--resolution {lo}-{hi}",
+                 "--voxel-size 0.0012 or larger"):
+        assert text in message, message
+    assert not any(tmp_path.glob("d.*"))
+    # the voxel size it suggests is accepted, at most the limit across
+    ok = foliage("density", simple_tree, "-o", out, "--voxel-size", "0.0012", "--json")
+    assert ok.returncode == 0, ok.stderr
+    shape = json.loads(ok.stdout)["stats"]["prototypes"][0]["shape"]
+    assert max(shape) - 2 <= hi

@@ -6,6 +6,7 @@ the two disagree."""
 from __future__ import annotations
 
 import pytest
+from click.testing import CliRunner
 
 from foliage_tools.cli.main import cli
 from foliage_tools.errors import UsageError
@@ -22,11 +23,19 @@ COMMANDS = ("density", "lb", "spp", "bake", "plan")
 @pytest.mark.parametrize("name", COMMANDS)
 def test_every_command_s_resolution_option_has_the_one_default_and_range(name):
     option = next(p for p in cli.commands[name].params if p.name == "resolution")
-    if name == "density":  # exclusive with --voxel-size, so None until DensityParams settles it
-        assert option.default is None and f"default: {DEFAULT_RESOLUTION}" in option.help
-    else:
-        assert option.default == DEFAULT_RESOLUTION
+    assert option.default == DEFAULT_RESOLUTION  # density's gives way to --voxel-size (tests/integration/test_density.py)
     assert (option.type.min, option.type.max) == RESOLUTION_RANGE
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_every_command_s_help_gives_the_resolution_default_and_range_once(name):
+    """A new user's trial: `foliage density --help` printed the range twice ("[default: 64; 4-512].  [4<=x<=512]")."""
+    text = CliRunner().invoke(cli, [name, "--help"], terminal_width=100).output
+    block = text[text.index("--resolution INTEGER RANGE"):]
+    block = " ".join(block[:block.index("\n  -", 1)].split())  # the option's lines, up to the next option
+    lo, hi = RESOLUTION_RANGE
+    assert f"[default: {DEFAULT_RESOLUTION}; {lo}<=x<={hi}]" in block, block
+    assert block.count(str(hi)) == 1 and block.count("default") == 1, block
 
 
 def test_every_stage_refuses_the_same_resolutions_with_the_same_message():
