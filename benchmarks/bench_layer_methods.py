@@ -10,7 +10,7 @@ Usage (the README's layer table)::
 Arguments: the layer, --leaf-optics, --sun, and optionally the methods. An SPP
 method takes options after colons: ``sppg:radiance:g16`` is ``--g-weights
 radiance --g-resolution 16`` (``:paper``: the default weights; ``:g0``: per-leaf depths; ``:orders`` / ``:once``: ``--g-orders`` /
-``--no-g-orders``; ``:rN``: ``--depth-resolution N``; the exact slab's defaults are g16, orders and the
+``--no-g-orders``; ``:march`` / ``:slab``: ``--first-order``; ``:rN``: ``--depth-resolution N``; the exact slab's defaults are g16, orders and the
 automatic depth resolution). The
 reference stops at 4 % per-leaf noise (a bin holds ~2000 leaves); bins are
 0.3 m of depth over the inner region |x|, |y| < 3.5 m, top to bottom.
@@ -37,6 +37,7 @@ from foliage_tools.pipeline.report import Silent  # noqa: E402
 from foliage_tools.pipeline.spp import SppParams, bake_spp  # noqa: E402
 from foliage_tools.pipeline.lb import LBBakeParams, bake_lb  # noqa: E402
 from foliage_tools.pipeline.gather import bake_gather  # noqa: E402
+from foliage_tools.pipeline.first_order import march_sppg  # noqa: E402
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct  # noqa: E402
 from foliage_tools.pipeline.reference import ReferenceParams, bake_reference  # noqa: E402
 from foliage_tools.lighting.optics import parse_leaf_optics  # noqa: E402
@@ -80,11 +81,17 @@ def main(argv: list[str]) -> int:
                     kw["g_weights"] = opt
                 elif opt in ("orders", "once"):
                     kw["g_orders"] = opt == "orders"
+                elif opt in ("march", "slab"):  # the first order of SPPG (--first-order)
+                    kw["first_order"] = opt
                 elif opt.startswith("r"):  # sppg:r16 = --depth-resolution 16 (the density grid of the depths)
                     kw["depth_resolution"] = int(opt[1:])
                 else:
                     kw["g_resolution"] = int(opt.removeprefix("g"))
-            b = bake_spp(scene, sun, SppParams(optics=optics, sun=sun_t, model=model, **kw), [], Silent())[0].result
+            params = SppParams(optics=optics, sun=sun_t, model=model, **kw)
+            bakes = bake_spp(scene, sun, params, [], Silent())
+            if params.first_order == "march":
+                bakes = march_sppg(scene, sun, optics, bakes, d, Silent())
+            b = bakes[0].result
             e = (b.sppg if m.startswith("sppg") else b.spp).scattered  # spp+gather: on SPP, sppg+gather: on SPPG
         elif m.startswith("lb"):
             res = 32 if m == "lb+gather" else int(m.split("-")[1])

@@ -32,6 +32,7 @@ from foliage_tools.lighting import raydepth as rd
 from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.bench import depth_thickness
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
+from foliage_tools.pipeline.first_order import march_sppg
 from foliage_tools.pipeline.instances import from_prototypes
 from foliage_tools.pipeline.reference import ReferenceParams, bake_reference
 from foliage_tools.pipeline.report import Silent
@@ -96,10 +97,13 @@ def run(path: Path, args) -> None:
             dres = int(dpath.removeprefix("grid")) if dpath.startswith("grid") and dpath != "grid" else None
             for k, (weights, gres, *more) in enumerate(variants):
                 gres = int(gres.removeprefix("g"))
-                bakes = bake_spp(scene, sun, SppParams(optics=optics, sun=tuple(args.sun), model=model, depth=dkind,
-                                                       depth_resolution=dres,
-                                                       g_weights=weights, g_resolution=gres,
-                                                       g_orders="orders" in more), [], Silent())
+                march = "march" in more
+                params = SppParams(optics=optics, sun=tuple(args.sun), model=model, depth=dkind, depth_resolution=dres,
+                                   g_weights=weights, g_resolution=gres, g_orders="orders" in more,
+                                   first_order="march" if march else "slab")
+                bakes = bake_spp(scene, sun, params, [], Silent())
+                if march:  # the first order from the exact direct light (--first-order march)
+                    bakes = march_sppg(scene, sun, optics, bakes, exact, Silent())
                 r = {b.index: b.result for b in bakes}
                 g = from_prototypes(world, {i: np.repeat(v.gfactor[:, None], 3, axis=1) for i, v in r.items()})[:, 0]
                 for which in ("ss", "spp", "sppg"):
@@ -107,7 +111,7 @@ def run(path: Path, args) -> None:
                     scat = from_prototypes(world, {i: getattr(v, which).scattered for i, v in r.items()})
                     name = f"{which}{'-paper' if model == 'spp' else ''}"
                     if which == "sppg":
-                        name += f" ({weights}, g{gres}{', orders' if 'orders' in more else ''})"
+                        name += f" ({weights}, g{gres}{', orders' if 'orders' in more else ''}{', march' if march else ''})"
                     if (which == "ss" and model == "exact") or (which != "sppg" and k > 0):
                         continue  # ss and spp do not depend on G
                     e = binned_rms(ex_dir + scat, ref_total, depth, thick)
@@ -136,8 +140,8 @@ def main() -> None:
                     help="depth paths of the rows: rays, grid (--depth-resolution auto) or gridN (--depth-resolution N)")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/bench_sppg_table3"))
     ap.add_argument("--g-variants", default="paper:g0,radiance:g0,paper:g16,radiance:g16",
-                    help="G-factor variants of the sppg rows, WEIGHTS:gRES[:orders] (--g-weights, --g-resolution, g0: per leaf; "
-                         "--g-orders)")
+                    help="G-factor variants of the sppg rows, WEIGHTS:gRES[:orders[:march]] (--g-weights, --g-resolution, g0: per leaf; "
+                         "--g-orders; --first-order march, else slab)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     for s in args.scenes:

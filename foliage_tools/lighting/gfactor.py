@@ -537,6 +537,9 @@ class SPPGResult:
     """Wall time of the call."""
     model: str = "exact"
     """The plane-parallel model of ``spp`` and ``sppg`` (``SPPGParams.resolved_model``)."""
+    orders: np.ndarray | None = None
+    """(L, C) with ``g_orders``: the sun's E_scattered over its first order in the real medium,
+    1 / (1 - (1 - s) ρ) (what ``lighting.first_order``'s once-scattered light is multiplied by); None without."""
 
 
 def _check_normals(normals, n: int) -> np.ndarray:
@@ -656,6 +659,13 @@ def recollision_ratio(boundary_depth, vn, mu0: float, light_depth, light_thickne
     p_slab = 1.0 - np.exp(-lengths).mean(axis=1)
     ratio = np.divide(p_real, p_slab, out=np.ones_like(p_real), where=p_slab > 0.0)
     return np.clip(ratio, 0.0, 1.0)
+
+
+def _all_over_first(share, rho) -> np.ndarray:
+    """1 / (1 - (1 - s) ρ): all orders over the first, the later ones at the slab's ratio times ρ (module
+    docstring, "Orders of scattering"; the first order's G taken out of ``_orders_g``)."""
+    den = 1.0 - (1.0 - share) * np.asarray(rho, dtype=np.float64)
+    return np.where(den > 0.0, 1.0 / np.where(den > 0.0, den, 1.0), 1.0)
 
 
 def _orders_g(g, share, rho) -> np.ndarray:
@@ -791,17 +801,25 @@ def solve_sppg(
     else:
         scat = spp_field(u[:, None], big_u[:, None], albedo=albedo[None, :], forward_fraction=t_sun[None, :]).leaf_irradiance
 
+    def share_rho(uu, ww, mu, e_model, g_light_depth, g_light_thickness) -> tuple[np.ndarray, np.ndarray]:
+        """The exact slab's once-scattered share (L, C) and the recollision ratio through G's depths (L, 1)."""
+        exact = e_model if model == "exact" else _exact_leaf_irradiance(uu, ww, mu, leaf_w, albedo, phases)
+        share = _once_scattered_share(uu, ww, mu, leaf_w, albedo, phases, exact)
+        rho = recollision_ratio(g_depths.sample_depth, dirs @ upv, mu, g_light_depth, g_light_thickness)
+        return share, rho[:, None]
+
     def orders(g, uu, ww, mu, e_model, g_light_depth, g_light_thickness) -> np.ndarray:
         """``g_orders``: G per order of scattering, from the exact slab's once-scattered share and the recollision
         ratio through G's depths."""
         if not params.g_orders:
             return g
-        exact = e_model if model == "exact" else _exact_leaf_irradiance(uu, ww, mu, leaf_w, albedo, phases)
-        share = _once_scattered_share(uu, ww, mu, leaf_w, albedo, phases, exact)
-        rho = recollision_ratio(g_depths.sample_depth, dirs @ upv, mu, g_light_depth, g_light_thickness)
-        return _orders_g(g, share, rho[:, None])
+        return _orders_g(g, *share_rho(uu, ww, mu, e_model, g_light_depth, g_light_thickness))
 
-    g_sun = orders(g_sun, u, big_u, mu0, scat, g_depths.sun_depth, g_depths.sun_thickness)
+    sun_orders = None
+    if params.g_orders:
+        share, rho = share_rho(u, big_u, mu0, scat, g_depths.sun_depth, g_depths.sun_thickness)
+        g_sun = _orders_g(g_sun, share, rho)
+        sun_orders = _all_over_first(share, rho)
 
     # --- sky -----------------------------------------------------------------
     sky_direct = np.zeros((n_leaves, n_ch))
@@ -839,5 +857,6 @@ def solve_sppg(
         refined=bool(params.refine),
         seconds=time.perf_counter() - start,
         model=model,
+        orders=sun_orders,
     )
     return result

@@ -60,6 +60,7 @@ from foliage_tools.lighting.phase import canopy_bilambertian_phase
 from foliage_tools.params import DEFAULT_RESOLUTION, DensityParams, check_resolution
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, density_grid, vdb_path
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
+from foliage_tools.pipeline.first_order import march_sppg
 from foliage_tools.pipeline.gather import bake_gather, check_gather, resolve_rays
 from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
@@ -79,6 +80,8 @@ _WORKERS = os.cpu_count() or 1
 
 #: The depth paths of ``--depth``.
 DEPTH_PATHS = ("auto", "grid", "rays")
+#: ``--first-order``: SPPG's once-scattered light from a march through the leaves' medium or from the slab (SppParams).
+FIRST_ORDERS = ("march", "slab")
 #: ``--depth auto`` counts rays while the scene has at most this many leaves (summed over instances) and
 #: integrates the grid above: rays cost 0.5-1 ms per leaf and instance at the defaults (bench_sppg.py: 50k leaves
 #: 25-56 s on two 2-core hosts; 500k would be 4-10 min against 4-7 s for the grid).
@@ -156,6 +159,11 @@ class SppParams:
     (exact shadow rays by default, or eq. 17's attenuated beam through the measured depths)."""
     volume_purpose: str = "default"
     """``--volume-purpose`` of the FoliageLighting volume (``scene.write.VOLUME_PURPOSES``)."""
+    first_order: str | None = None
+    """``--first-order``: where SPPG's once-scattered sun light comes from. ``march``: the leaves' exact direct
+    light scattered once and marched through a coarse voxel medium (lighting.first_order), the later orders at
+    SPPG's rate (needs ``g_orders``); ``slab``: the exact slab's first order times G (shinya2013 eq. 28's
+    reading). None: ``march`` with ``g_orders``, else ``slab``."""
     gather: int | None = None
     """``--gather N``: rays per leaf of a final gather over the actual leaves (pipeline.gather) whose first
     bounce is exact and whose later bounces come from the method it replaces (SPPG; SPP with ``--no-gfactor``); its
@@ -173,11 +181,18 @@ class SppParams:
         if self.rays_per_leaf < 1:
             raise UsageError(f"--rays-per-leaf must be >= 1, got {self.rays_per_leaf}.")
         check_gather(self.gather)
+        if self.first_order is not None and self.first_order not in FIRST_ORDERS:
+            raise UsageError(f"--first-order must be one of {', '.join(FIRST_ORDERS)}, got {self.first_order!r}.")
         if self.model is not None and self.model not in gf.MODELS:
             raise UsageError(f"--model must be one of {', '.join(gf.MODELS)}, got {self.model!r}.")
         exact = (self.model or ("spp" if self.refine else "exact")) == "exact"
         if self.g_orders is None:
             object.__setattr__(self, "g_orders", exact)
+        if self.first_order is None:
+            object.__setattr__(self, "first_order", "march" if self.g_orders else "slab")
+        if self.first_order == "march" and not self.g_orders:
+            raise UsageError("--first-order march takes the later orders from --g-orders; give --g-orders, or "
+                             "--first-order slab with --no-g-orders.")
         if self.g_resolution is None:
             object.__setattr__(self, "g_resolution", G_RESOLUTION if exact else 0)
         if self.g_resolution and not (4 <= self.g_resolution <= 512):
@@ -343,7 +358,7 @@ def _mean_result(results: list[gf.SPPGResult]) -> gf.SPPGResult:
         sppg=_mean_irradiance([r.sppg for r in results]), spp=_mean_irradiance([r.spp for r in results]),
         ss=_mean_irradiance([r.ss for r in results]), gfactor=np.mean([r.gfactor for r in results], axis=0),
         directions=first.directions, mu0=first.mu0, refined=first.refined, seconds=sum(r.seconds for r in results),
-        model=first.model,
+        model=first.model, orders=None if first.orders is None else np.mean([r.orders for r in results if r.orders is not None], axis=0),
     )
 
 
@@ -497,6 +512,9 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
     bakes = bake_spp(scene, sun, params, report.warnings, progress)
     exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
     best_name = "sppg" if params.gfactor else "spp"
+    if params.gfactor and params.first_order == "march":  # its source is the exact direct light, whatever --direct writes
+        exact_source = exact or bake_direct(scene, sun, DirectChoice(), progress)
+        bakes = march_sppg(scene, sun, params.optics, bakes, exact_source, progress)
     gathered = None
     world = exact.world if exact else bake_world(scene)
     rays = resolve_rays(params.gather, int(world.offsets[-1]), report.warnings)
@@ -564,7 +582,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         "directions": params.directions, "cells": int(sum(p["cells"] for p in protos)), "refine": params.refine,
         "depth": params.depth, "rays_per_leaf": params.rays_per_leaf if params.depth == "rays" else None,
         "gfactor": params.gfactor, "model": gf.SPPGParams(refine=params.refine, model=params.model).resolved_model,
-        "g_weights": params.g_weights, "g_resolution": params.g_resolution, "g_orders": params.g_orders,
+        "g_weights": params.g_weights, "g_resolution": params.g_resolution, "g_orders": params.g_orders, "first_order": params.first_order,
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},

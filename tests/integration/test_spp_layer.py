@@ -1,7 +1,8 @@
 """``foliage spp`` with its defaults on the issue's uniform layer against the exact plane-parallel solution (issue #15).
 
 The layer of examples/make_layer.py (10 x 10 x 1.5 m, 30 000 cards of 0.1 m, LAI 3, tau = 1.5), read back from
-USD; per-leaf SPPG E_scattered (the exact slab per leaf with the G-factor, ``foliage spp``'s defaults) in five
+USD; per-leaf SPPG E_scattered (the exact slab per leaf with the G-factor, with the slab's first order times G
+(``--first-order slab``) and with ``foliage spp``'s default, the first order marched from the exact direct light) in five
 depth bins of the inner region |x|, |y| < 3 m against ``plane_parallel.solve_slab`` with the bi-Lambertian phase
 function, as tests/integration/test_lb_layer.py does for LB. Bound: the issue's own, 10 % in every bin. The
 finite layer itself reads 2-5 % below the infinite slab there (its sides leak; the Monte Carlo reference on the
@@ -9,6 +10,8 @@ same layer), so that is part of every bin's deficit. Measured at 60 degrees, top
 
     r=t=0.1    auto (32 voxels)  -1.9  -4.0  -3.6  -3.3  -1.6    64 voxels  -6.7  -6.6  -5.4  -4.1  -5.0
     r=t=0.45                     -3.7  -6.2  -5.9  -6.9  -5.6               -8.5  -9.7  -8.8  -9.3 -10.8
+    march (default)   r=t=0.1    -1.2  -2.1  -2.1  -1.6  +3.1  (32 voxels, against the infinite slab)
+                      r=t=0.45   -2.9  -4.0  -3.9  -4.3  +0.2
 
 The second check is the depth grid (``SppParams.depth_resolution``). The layer's 64-voxel grid holds 1.4 leaves
 per leaf-holding voxel: each leaf's depths are then a noisy sample of the layer's, and the slab solution is
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +33,8 @@ from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.lighting.phase import canopy_bilambertian_phase
 from foliage_tools.lighting.plane_parallel import solve_slab
 from foliage_tools.pipeline.report import Silent
+from foliage_tools.pipeline.direct import DirectChoice, bake_direct
+from foliage_tools.pipeline.first_order import march_sppg
 from foliage_tools.pipeline.spp import SppParams, bake_spp, depth_resolution
 from foliage_tools.pipeline.stage import begin_bake
 
@@ -55,7 +61,8 @@ def test_default_spp_on_the_uniform_layer_against_the_exact_slab(tmp_path):
     mu0 = math.sin(math.radians(elevation))
     assert depth_resolution(proto, SppParams(optics=OPTICS)) == 32  # 5.1 leaves a leaf-holding voxel; 48: 2.1
 
-    auto = bake_spp(scene, sun, SppParams(optics=OPTICS, sun=(0.0, elevation)), [], Silent())[0]
+    auto = bake_spp(scene, sun, SppParams(optics=OPTICS, sun=(0.0, elevation), first_order="slab"), [], Silent())[0]
+    march = march_sppg(scene, sun, OPTICS, [replace(auto)], bake_direct(scene, sun, DirectChoice(), Silent()), Silent())[0]
     fine = bake_spp(scene, sun, SppParams(optics=OPTICS, sun=(0.0, elevation), depth_resolution=64), [], Silent())[0]
     assert auto.depth_resolution == 32 and fine.depth_resolution == 64
     sq_auto, sq_fine = [], []
@@ -65,6 +72,8 @@ def test_default_spp_on_the_uniform_layer_against_the_exact_slab(tmp_path):
         exact = sol.actinic_flux_diffuse / 2
         err = _bin_errors(auto.result.sppg.scattered[:, ch], exact, depth, inner)
         assert np.all(np.abs(err) <= 0.10), (rt, err)
+        err_march = _bin_errors(march.result.sppg.scattered[:, ch], exact, depth, inner)
+        assert np.all(np.abs(err_march) <= 0.10), (rt, err_march)
         sq_auto.append(err**2)
         f = _bin_errors(fine.result.sppg.scattered[:, ch], exact, depth, inner)
         sq_fine.append(f**2)

@@ -17,8 +17,10 @@ EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 def test_spp_writes_grids_and_primvars(tmp_path):
     from pxr import Usd, UsdGeom
 
-    # no gather: the sppg primvars are then SPPG's own (G applied to SPP's), which this test checks against spp's
-    report = run_spp(EXAMPLE, tmp_path / "s.usda", SppParams(optics=parse_leaf_optics(None), resolution=16, gather=0))
+    # no gather and the slab's first order: the sppg primvars are then G applied to SPP's, which this test checks
+    # against spp's (the default first order, marched, is checked below and in tests/unit/test_first_order.py)
+    report = run_spp(EXAMPLE, tmp_path / "s.usda", SppParams(optics=parse_leaf_optics(None), resolution=16, gather=0,
+                                                             first_order="slab"))
     assert sorted(grid_names(tmp_path / "s.vdb")) == ["sppDepth", "sppGFactor", "sppThickness"]
     g = read_grid(tmp_path / "s.vdb", "sppGFactor").values
     assert np.all((g >= 0) & (g <= 1 + 1e-6))
@@ -49,6 +51,16 @@ def test_spp_writes_grids_and_primvars(tmp_path):
     assert report.stats["model"] == "exact" and report.stats["direct"]["mode"] == "rays"
     assert report.stats["prototypes"][0]["instances"] == 1 and report.stats["prototypes"][0]["neighbours"] == 0
     assert foliage("validate", tmp_path / "s.usda").returncode == 0
+    assert report.stats["first_order"] == "slab"
+
+    # the default: SPPG's first order marched from the exact direct light; spp's primvars do not change
+    report = run_spp(EXAMPLE, tmp_path / "m.usda", SppParams(optics=parse_leaf_optics(None), resolution=16, gather=0))
+    assert report.stats["first_order"] == "march"
+    stage = Usd.Stage.Open(str(tmp_path / "m.usda"))
+    pv = UsdGeom.PrimvarsAPI(UsdGeom.Mesh(stage.GetPrimAtPath("/Tree/Leaves")))
+    marched = np.asarray(pv.GetPrimvar("foliage:sppg:scattered").Get())
+    assert np.array_equal(np.asarray(pv.GetPrimvar("foliage:spp:scattered").Get()), spp)
+    assert np.all(np.isfinite(marched)) and np.all(marched >= 0) and not np.allclose(marched, sppg, rtol=0.05)
 
 
 def test_grid_depth_path_is_a_flag_and_bad_values_are_usage_errors(tmp_path):

@@ -4,6 +4,7 @@ from foliage_tools.bench.registry import BenchContext, MethodOutput, register
 from foliage_tools.pipeline.gather import bake_gather
 from foliage_tools.pipeline.lb import LBBakeParams, bake_lb
 from foliage_tools.pipeline.report import Silent
+from foliage_tools.bench.methods.spp import with_first_order
 from foliage_tools.pipeline.spp import SppParams, bake_spp
 
 #: Gather rays per leaf of the bench rows (the default of ``--gather`` when it is asked for).
@@ -23,8 +24,8 @@ def run_lb(ctx: BenchContext) -> MethodOutput:
 
 
 def _spp_gather(ctx: BenchContext, variant: str) -> MethodOutput:
-    bakes = bake_spp(ctx.scene, ctx.sun, SppParams(optics=ctx.optics, sun=(ctx.sun.azimuth, ctx.sun.elevation)),
-                     ctx.warnings, Silent())
+    params = SppParams(optics=ctx.optics, sun=(ctx.sun.azimuth, ctx.sun.elevation))
+    bakes = with_first_order(ctx, params, bake_spp(ctx.scene, ctx.sun, params, ctx.warnings, Silent()))
     g = bake_gather(ctx.scene, ctx.sun, ctx.optics, {b.index: getattr(b.result, variant).scattered for b in bakes},
                     RAYS, Silent())
     return MethodOutput(e_direct={b.index: getattr(b.result, variant).direct for b in bakes},

@@ -1,0 +1,60 @@
+"""``--first-order march``: SPPG's once-scattered sun light from the leaves' exact direct light (lighting.first_order).
+
+Per traced tree (the whole world, or each lone tree of a large forest, as the
+shadow rays and the gather) the leaves' exact direct light is scattered once
+and marched through a coarse voxel medium of their triangles; each leaf's
+E_scattered is that times SPPG's all-orders-over-first factor at the leaf
+(``SPPGResult.orders``, the mean over the prototype's instances). Per
+prototype the result is the mean over its instances, as for the other
+per-leaf values; it replaces ``result.sppg.scattered`` of each bake.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+
+import numpy as np
+
+from foliage_tools.geometry.sun import Sun
+from foliage_tools.lighting import first_order
+from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.pipeline.direct import DirectBake
+from foliage_tools.pipeline.instances import from_prototypes
+from foliage_tools.pipeline.report import Progress
+from foliage_tools.pipeline.world import prototype_means, traced_parts
+from foliage_tools.scene.model import Scene
+
+log = logging.getLogger(__name__)
+
+
+def march_sppg(scene: Scene, sun: Sun, optics: LeafOptics, bakes: list, direct: DirectBake, progress: Progress) -> list:
+    """``bakes`` (pipeline.spp.SppBake, baked with ``g_orders``) with SPPG's sun E_scattered from the march."""
+    world = direct.world
+    n = int(world.offsets[-1])
+    missing = [b.index for b in bakes if b.result.orders is None]
+    if missing:
+        raise ValueError(f"the first-order march needs SPPG's orders factor (g_orders) for prototypes {missing}")
+    if not bakes or n == 0:
+        return bakes
+    progress.step(f"SPPG first order: {n:,} leaves marched through a {first_order.DEFAULT_RESOLUTION}-voxel medium")
+    e_direct = direct.result.e_direct
+    once = np.zeros((n, len(optics.reflectance)))
+    seconds = 0.0
+    for tris, ids, count, leaves in traced_parts(world):
+        if not count:
+            continue
+        res = first_order.solve(first_order.FirstOrderInputs(
+            triangles=tris, leaf_of_triangle=ids, leaf_centers=world.leaf_centers[leaves],
+            leaf_area=world.leaf_area[leaves], e_direct=e_direct[leaves], optics=optics, sun_direction=sun.direction))
+        once[leaves] = res.e_once
+        seconds += res.seconds
+    per_leaf = once * from_prototypes(world, {b.index: b.result.orders for b in bakes})
+    counts = [p.leaves.count for p in scene.prototypes]
+    means = prototype_means(world, per_leaf, len(counts), counts)
+    log.info("first order: %s leaves marched, %.2f s", f"{n:,}", seconds)
+    out = []
+    for b in bakes:
+        sppg = replace(b.result.sppg, scattered=means[b.index])
+        out.append(replace(b, result=replace(b.result, sppg=sppg), seconds=b.seconds + seconds / len(bakes)))
+    return out

@@ -1,0 +1,130 @@
+"""The first-order march (lighting.first_order) against the exact slab's once-scattered light, and its guards.
+
+The case where the march's model is exact in expectation: the issue's uniform layer (examples/make_layer.py,
+10 x 10 x 1.5 m, 30 000 random cards of 0.1 m, LAI 3) with each card's direct light given as the layer's mean
+one, |n . s| exp(-tau(z) / mu0) (G = 0.5 for normals uniform on the sphere: Beer's law in a Poisson medium, which
+the voxel medium reproduces in expectation). The once-scattered irradiance of a homogeneous slab is then the exact
+discrete-ordinate solution at a vanishing albedo scaled to the real one (plane_parallel.solve_slab; its first
+order is linear in the albedo), per depth bin of the inner region |x|, |y| < 3 m.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from foliage_tools.lighting import first_order as fo
+from foliage_tools.lighting.optics import LeafOptics
+from foliage_tools.lighting.phase import canopy_bilambertian_phase
+from foliage_tools.lighting.plane_parallel import solve_slab
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "examples"))
+
+EPS = 1e-4
+
+
+def _layer_inputs(r, t, elevation, seed=1):
+    from make_layer import build_layer
+
+    layer = build_layer(seed=seed)
+    n = layer.leaf_count
+    quads = layer.points.reshape(n, 4, 3)
+    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    ids = np.concatenate([np.arange(n), np.arange(n)])
+    el = math.radians(elevation)
+    sun = np.array([math.cos(el), 0.0, math.sin(el)])
+    depth = 0.5 * 2.0 * (1.5 - layer.centres[:, 2])  # G 0.5 x LAD 2 per metre below the top
+    e_dir = np.abs(layer.normals @ sun) * np.exp(-depth / sun[2])
+    optics = LeafOptics((r,) * 3, (t,) * 3)
+    return fo.FirstOrderInputs(tris, ids, layer.centres, np.full(n, 0.01), e_dir, optics, sun), depth, sun[2]
+
+
+def _exact_once(r, t, mu0, depth):
+    """The slab's once-scattered irradiance, both faces summed (actinic flux / 2 of a unit beam)."""
+    phase = canopy_bilambertian_phase(reflectance=EPS * r / (r + t), transmittance=EPS * t / (r + t))
+    sol = solve_slab(tau=1.5, omega=EPS, mu0=mu0, phase=phase, depths=depth)
+    return sol.actinic_flux_diffuse / 2 * (r + t) / EPS
+
+
+@pytest.mark.parametrize("r, t, elevation", [(0.45, 0.45, 60.0), (0.4, 0.05, 30.0), (0.05, 0.4, 30.0)])
+def test_uniform_layer_against_the_exact_slabs_first_order(r, t, elevation):
+    # Bound 8 % per bin: the issue asks the whole E_scattered of `foliage spp` within 10 % of the exact solution
+    # in every bin, and the later orders SPPG adds carry errors of their own (-1 ... -5 % in the slab's rows of
+    # README's layer table), so the first order must leave them room. Measured at the default 32 voxels, top bin
+    # first: -0.1 -1.5 -1.4 -0.6 +3.5 / -1.1 -0.9 +0.2 +1.4 +6.3 / -1.6 -1.4 -0.8 -0.1 +3.7 %; the bottom bin is
+    # the highest in each (the layer's faces fall inside the 5 voxels its 1.5 m span: README "SPPG's first order").
+    # Swapping r and t (the second and third cases) moves the light between the sunlit and the shaded side: with
+    # the side of reflection flipped the two read -12 ... +69 % and +11 ... -35 % (measured), far outside.
+    inputs, depth, mu0 = _layer_inputs(r, t, elevation)
+    got = fo.solve(inputs).e_once[:, 0]
+    want = _exact_once(r, t, mu0, depth)
+    c = inputs.leaf_centers
+    inner = (np.abs(c[:, 0]) < 3.0) & (np.abs(c[:, 1]) < 3.0)
+    bins = np.clip(np.digitize(depth, np.linspace(0, 1.5, 6)) - 1, 0, 4)
+    err = np.array([got[inner & (bins == k)].mean() / want[inner & (bins == k)].mean() - 1 for k in range(5)])
+    assert np.all(np.abs(err) < 0.08), err
+
+
+def test_reflection_and_transmission_sides_differ_as_the_slab_says():
+    # The two swapped cases above against each other: the exact slab's first order of r = 0.4, t = 0.05 over
+    # r = 0.05, t = 0.4 per depth bin (1.12 at the top to 0.61 at the bottom), and the march's, agree within 5 %
+    # of the ratio: the grid's error largely cancels in it (same cards, same direct light; measured 0.6-2.5 %),
+    # while a flipped side of reflection puts it at 0.79-2.6 of the slab's (measured).
+    ratios = []
+    for r, t in ((0.4, 0.05), (0.05, 0.4)):
+        inputs, depth, mu0 = _layer_inputs(r, t, 30.0)
+        ratios.append((fo.solve(inputs).e_once[:, 0], _exact_once(r, t, mu0, depth)))
+    c = inputs.leaf_centers
+    inner = (np.abs(c[:, 0]) < 3.0) & (np.abs(c[:, 1]) < 3.0)
+    bins = np.clip(np.digitize(depth, np.linspace(0, 1.5, 6)) - 1, 0, 4)
+    for k in range(5):
+        m = inner & (bins == k)
+        got = ratios[0][0][m].mean() / ratios[1][0][m].mean()
+        want = ratios[0][1][m].mean() / ratios[1][1][m].mean()
+        assert abs(got / want - 1) < 0.05, (k, got, want)
+
+
+def _two_cards(e_direct=(1.0, 0.0)):
+    quad = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
+    cards = [quad, quad + [0.0, 0.0, -0.3]]
+    tris = np.array([q[list(idx)] for q in cards for idx in ((0, 1, 2), (0, 2, 3))])
+    ids = np.array([0, 0, 1, 1])
+    centers = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -0.3]])
+    return dict(triangles=tris, leaf_of_triangle=ids, leaf_centers=centers, leaf_area=np.full(2, 0.01),
+                e_direct=np.asarray(e_direct), optics=LeafOptics(0.3, 0.2), sun_direction=np.array([0.0, 0.0, 1.0]))
+
+
+def test_a_lit_card_lights_the_card_below_it_and_not_itself():
+    res = fo.solve(fo.FirstOrderInputs(**_two_cards()), resolution=2)
+    assert res.e_once.shape == (2, 3) and np.all(np.isfinite(res.e_once))
+    assert res.e_once[0].max() == 0.0  # the only lit card, taken out of its own voxel
+    assert np.all(res.e_once[1] > 0.0)
+
+
+def test_no_direct_light_no_first_order_and_wood_only_blocks():
+    kw = _two_cards(e_direct=(0.0, 0.0))
+    assert np.all(fo.solve(fo.FirstOrderInputs(**kw)).e_once == 0.0)
+    kw = _two_cards()
+    kw["leaf_of_triangle"] = np.array([0, 0, -1, -1])  # the lower card is wood: no leaf receives anything but card 0
+    kw["leaf_centers"], kw["leaf_area"], kw["e_direct"] = kw["leaf_centers"][:1], kw["leaf_area"][:1], kw["e_direct"][:1]
+    assert np.all(fo.solve(fo.FirstOrderInputs(**kw), resolution=2).e_once == 0.0)
+
+
+@pytest.mark.parametrize("field, value", [
+    ("triangles", np.full((4, 3, 3), np.nan)), ("leaf_of_triangle", np.array([0, 0, 2, 2])),
+    ("leaf_area", np.array([0.01, 0.0])), ("e_direct", np.array([1.0, -1.0])), ("sun_direction", np.zeros(3)),
+])
+def test_bad_inputs_are_value_errors(field, value):
+    kw = _two_cards()
+    kw[field] = value
+    with pytest.raises(ValueError):
+        fo.FirstOrderInputs(**kw)
+
+
+def test_bad_resolution_is_a_value_error():
+    with pytest.raises(ValueError, match="resolution"):
+        fo.solve(fo.FirstOrderInputs(**_two_cards()), resolution=0)
