@@ -23,14 +23,16 @@ lit face, from the shadow rays every bake traces) sends intensity
 
 toward w, c_k = r on the lit side (sign(n_k . w) = sign(n_k . sun)) and t on
 the other: a two-sided Lambertian leaf, whose scattered power over the sphere
-is E_k A_k (r + t). Per voxel of a grid of ``resolution`` voxels along the
-longest edge, the emission per unit volume and the extinction coefficient
-along w are
+is E_k A_k (r + t). Wood is opaque Lambertian (the reference's): a wood
+triangle with direct irradiance E_k (``wood_direct``, its own shadow rays)
+sends eq. (1) with c_k = rho_wood on its lit side and 0 on the other. Per
+voxel of a grid of ``resolution`` voxels along the longest edge, the emission
+per unit volume and the extinction coefficient along w are
 
-    J(w) = sum_k I_k(w) / V,    sigma(w) = sum_k A_k |n_k . w| / V       (2)
+    J(w) = sum_k I_k(w) / V,    sigma(w) = sum_k a_k A_k |n_k . w| / V   (2)
 
-(leaves; wood triangles only block, with half their projected area: the
-projection of a closed surface, and wood does not scatter here). A leaf's
+(a_k = 1 for a leaf, 1/2 for wood: the projection of a closed surface is half
+the sum of its triangles'). A leaf's
 once-scattered irradiance, both faces summed, is
 
     E1_i = sum_m (4 pi / M) (sum_{k in i} A_k |n_k . w_m| / A_i) L_m,    (3)
@@ -93,6 +95,9 @@ class FirstOrderInputs:
     optics: LeafOptics
     sun_direction: np.ndarray
     """(3,) toward the sun."""
+    wood_direct: np.ndarray | None = None
+    """(W,) direct sun irradiance of each wood triangle (those with leaf id -1, in order; its lit side), which
+    then scatters with ``optics.wood_reflectance`` on that side; None: wood only blocks."""
 
     def __post_init__(self) -> None:
         tri = np.asarray(self.triangles, dtype=np.float64)
@@ -112,6 +117,11 @@ class FirstOrderInputs:
             raise ValueError(f"leaf_area must be ({n},) and > 0")
         if e.ndim != 2 or e.shape[0] != n or not np.all(np.isfinite(e)) or np.any(e < 0):
             raise ValueError(f"e_direct must be ({n}, C) finite and >= 0, got {e.shape}")
+        if self.wood_direct is not None:
+            wd = np.asarray(self.wood_direct, dtype=np.float64)
+            if wd.shape != (int(np.count_nonzero(lf < 0)),) or not np.all(np.isfinite(wd)) or np.any(wd < 0):
+                raise ValueError(f"wood_direct must be one finite value >= 0 per wood triangle, got {wd.shape}")
+            object.__setattr__(self, "wood_direct", wd)
         sun = np.asarray(self.sun_direction, dtype=np.float64)
         if sun.shape != (3,) or not np.linalg.norm(sun) > 0:
             raise ValueError("sun_direction must be a non-zero 3-vector")
@@ -198,8 +208,11 @@ def solve(inputs: FirstOrderInputs, *, resolution: int = DEFAULT_RESOLUTION, dir
     dirs = fibonacci_directions(directions)
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     twice = np.linalg.norm(cross, axis=1)
+    e_wood = np.zeros(len(tri))
+    if inputs.wood_direct is not None:
+        e_wood[lf < 0] = inputs.wood_direct
     keep = twice > 0.0
-    tri, lf, cross, twice = tri[keep], lf[keep], cross[keep], twice[keep]
+    tri, lf, cross, twice, e_wood = tri[keep], lf[keep], cross[keep], twice[keep], e_wood[keep]
     tri_area, normal = 0.5 * twice, cross / twice[:, None]
     points = np.concatenate([tri.reshape(-1, 3), centers])
     lo = points.min(axis=0)
@@ -213,7 +226,8 @@ def solve(inputs: FirstOrderInputs, *, resolution: int = DEFAULT_RESOLUTION, dir
 
     leaf = lf >= 0
     lit = np.sign(normal @ inputs.sun_direction)                            # the sunlit side of each triangle
-    e_tri = np.where(leaf[:, None], e_dir[np.maximum(lf, 0)], 0.0)          # (T, C)
+    e_tri = np.where(leaf[:, None], e_dir[np.maximum(lf, 0)], e_wood[:, None])   # (T, C)
+    wood_r = np.broadcast_to(np.asarray(inputs.optics.wood_reflectance, dtype=np.float64), (n_ch,))
     start_cell = np.minimum(np.floor((centers - lo) / h).astype(np.int64), shape - 1)
     own = leaf & np.all(cell == start_cell[np.maximum(lf, 0)], axis=1)      # the leaf itself, where its march starts
     cells = int(np.prod(shape))
@@ -227,7 +241,8 @@ def solve(inputs: FirstOrderInputs, *, resolution: int = DEFAULT_RESOLUTION, dir
         cos = normal[b] @ dirs.T
         proj = np.abs(cos) * tri_area[b, None]
         # toward the receiver the light travels along -w_m: it leaves the emitter on the side sign(n . -w_m)
-        coef = np.where((np.sign(-cos) == lit[b, None])[:, :, None], r, t)
+        lit_side = (np.sign(-cos) == lit[b, None])[:, :, None]
+        coef = np.where(leaf[b, None, None], np.where(lit_side, r, t), np.where(lit_side, wood_r, 0.0))
         intensity = e_tri[b, None, :] * proj[:, :, None] * coef / math.pi    # eq. (1)
         block = np.where(leaf[b, None], proj, 0.5 * proj)
         np.add.at(sigma, flat[b], block / volume)                            # eq. (2)

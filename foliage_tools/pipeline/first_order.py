@@ -2,7 +2,7 @@
 
 Per traced tree (the whole world, or each lone tree of a large forest, as the
 shadow rays and the gather) the leaves' exact direct light is scattered once
-and marched through a coarse voxel medium of their triangles; each leaf's
+(and the wood's, traced here) and marched through a coarse voxel medium of their triangles; each leaf's
 E_scattered is that times SPPG's all-orders-over-first factor at the leaf
 (``SPPGResult.orders``, the mean over the prototype's instances). Per
 prototype the result is the mean over its instances, as for the other
@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 
 from foliage_tools.geometry.sun import Sun
-from foliage_tools.lighting import first_order
+from foliage_tools.lighting import direct, first_order
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.direct import DirectBake
 from foliage_tools.pipeline.instances import from_prototypes
@@ -26,6 +26,25 @@ from foliage_tools.pipeline.world import prototype_means, traced_parts
 from foliage_tools.scene.model import Scene
 
 log = logging.getLogger(__name__)
+
+
+#: Shadow rays per wood triangle for its direct light (at most; fewer, down to 2, above WOOD_RAY_BUDGET rays).
+WOOD_SAMPLES, WOOD_RAY_BUDGET = 16, 1 << 22
+
+
+def wood_direct(triangles: np.ndarray, leaf_of_triangle: np.ndarray, sun_direction: np.ndarray) -> np.ndarray | None:
+    """(W,) direct sun irradiance of each wood triangle (leaf id -1), from shadow rays through every triangle;
+    None without wood. Wood scatters a share of the first order where leaves are dark: on tree_small at the
+    default optics the march without it read 0.85 / 0.90 / 0.75 of the reference's E_scattered per channel, with
+    it 0.95 in all three (README "SPPG's first order")."""
+    is_wood = leaf_of_triangle < 0
+    n = int(np.count_nonzero(is_wood))
+    if n == 0:
+        return None
+    ids = np.full(len(leaf_of_triangle), -1)
+    ids[is_wood] = np.arange(n)  # each wood triangle its own "leaf"; the leaves then only block
+    k = int(max(2, min(WOOD_SAMPLES, WOOD_RAY_BUDGET // n)) // 2 * 2)
+    return direct.solve(direct.DirectInputs(triangles, ids, n, sun_direction), direct.DirectParams(samples_per_leaf=k)).e_direct
 
 
 def march_sppg(scene: Scene, sun: Sun, optics: LeafOptics, bakes: list, direct: DirectBake, progress: Progress) -> list:
@@ -44,9 +63,11 @@ def march_sppg(scene: Scene, sun: Sun, optics: LeafOptics, bakes: list, direct: 
     for tris, ids, count, leaves in traced_parts(world):
         if not count:
             continue
+        wood = wood_direct(tris, ids, sun.direction)
         res = first_order.solve(first_order.FirstOrderInputs(
             triangles=tris, leaf_of_triangle=ids, leaf_centers=world.leaf_centers[leaves],
-            leaf_area=world.leaf_area[leaves], e_direct=e_direct[leaves], optics=optics, sun_direction=sun.direction))
+            leaf_area=world.leaf_area[leaves], e_direct=e_direct[leaves], optics=optics, sun_direction=sun.direction,
+            wood_direct=wood))
         once[leaves] = res.e_once
         seconds += res.seconds
     per_leaf = once * from_prototypes(world, {b.index: b.result.orders for b in bakes})

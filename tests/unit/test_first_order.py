@@ -128,3 +128,25 @@ def test_bad_inputs_are_value_errors(field, value):
 def test_bad_resolution_is_a_value_error():
     with pytest.raises(ValueError, match="resolution"):
         fo.solve(fo.FirstOrderInputs(**_two_cards()), resolution=0)
+
+
+def test_lit_wood_reflects_to_its_lit_side_only():
+    # an opaque Lambertian wood card lit from above (sun at the zenith) sends light up, none down: the leaf above it
+    # receives, the same leaf placed below receives nothing (t = 0 for wood); and without wood_direct none either
+    for leaf_z, wood_z, lit in ((0.0, -0.3, True), (-0.3, 0.0, False)):
+        kw = _two_cards()
+        quad = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
+        kw["triangles"] = np.array([(quad + [0, 0, z])[list(i)] for z in (leaf_z, wood_z) for i in ((0, 1, 2), (0, 2, 3))])
+        kw["leaf_of_triangle"] = np.array([0, 0, -1, -1])
+        kw["leaf_centers"], kw["leaf_area"], kw["e_direct"] = np.array([[0.0, 0.0, leaf_z]]), np.full(1, 0.01), np.zeros(1)
+        got = fo.solve(fo.FirstOrderInputs(**kw, wood_direct=np.ones(2)), resolution=2).e_once
+        assert np.all(got > 0) if lit else np.all(got == 0), (leaf_z, got)
+        assert np.all(fo.solve(fo.FirstOrderInputs(**kw), resolution=2).e_once == 0)
+
+
+def test_wood_direct_needs_one_value_per_wood_triangle():
+    kw = _two_cards()
+    kw["leaf_of_triangle"] = np.array([0, 0, -1, -1])
+    kw["leaf_centers"], kw["leaf_area"], kw["e_direct"] = kw["leaf_centers"][:1], kw["leaf_area"][:1], kw["e_direct"][:1]
+    with pytest.raises(ValueError, match="wood_direct"):
+        fo.FirstOrderInputs(**kw, wood_direct=np.ones(3))
