@@ -10,7 +10,7 @@ Usage (the README's layer table)::
 Arguments: the layer, --leaf-optics, --sun, and optionally the methods. An SPP
 method takes options after colons: ``sppg:radiance:g16`` is ``--g-weights
 radiance --g-resolution 16`` (``:paper``: the default weights; ``:g0``: per-leaf depths; ``:orders`` / ``:once``: ``--g-orders`` /
-``--no-g-orders``; ``:march`` / ``:slab``: ``--first-order``; ``:rN``: ``--depth-resolution N``; the exact slab's defaults are g16, orders and the
+``--no-g-orders``; ``:march`` / ``:slab``: ``--first-order``; ``lb-64:march``: LB's ``--first-order march``; ``:rN``: ``--depth-resolution N``; the exact slab's defaults are g16, orders and the
 automatic depth resolution). The
 reference stops at 4 % per-leaf noise (a bin holds ~2000 leaves); bins are
 0.3 m of depth over the inner region |x|, |y| < 3.5 m, top to bottom.
@@ -35,9 +35,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from foliage_tools.pipeline.stage import begin_bake  # noqa: E402
 from foliage_tools.pipeline.report import Silent  # noqa: E402
 from foliage_tools.pipeline.spp import SppParams, bake_spp  # noqa: E402
-from foliage_tools.pipeline.lb import LBBakeParams, bake_lb  # noqa: E402
+from foliage_tools.pipeline.lb import LBBakeParams, bake_lb, later_orders, marches  # noqa: E402
 from foliage_tools.pipeline.gather import bake_gather  # noqa: E402
-from foliage_tools.pipeline.first_order import march_sppg  # noqa: E402
+from foliage_tools.pipeline.first_order import march_lb, march_sppg  # noqa: E402
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct  # noqa: E402
 from foliage_tools.pipeline.reference import ReferenceParams, bake_reference  # noqa: E402
 from foliage_tools.lighting.optics import parse_leaf_optics  # noqa: E402
@@ -93,10 +93,15 @@ def main(argv: list[str]) -> int:
                 bakes = march_sppg(scene, sun, optics, bakes, d, Silent())
             b = bakes[0].result
             e = (b.sppg if m.startswith("sppg") else b.spp).scattered  # spp+gather: on SPP, sppg+gather: on SPPG
-        elif m.startswith("lb"):
-            res = 32 if m == "lb+gather" else int(m.split("-")[1])
-            b = bake_lb(scene, sun, LBBakeParams(optics=optics, sun=sun_t, resolution=res), [], Silent())[0]
-            e = b.e_scattered
+        elif m.startswith("lb"):  # lb-64:march = --first-order march
+            base, *opts = m.removesuffix("+gather").split(":")
+            res = 32 if base == "lb" else int(base.split("-")[1])
+            params = LBBakeParams(optics=optics, sun=sun_t, resolution=res, first_order="march" if "march" in opts else "field")
+            bakes = bake_lb(scene, sun, params, [], Silent())
+            if marches(params):
+                later = {b.index: later_orders(b, scene.prototypes[b.index].leaves.centers) for b in bakes}
+                bakes = march_lb(scene, sun, optics, bakes, later, d, Silent())
+            e = bakes[0].e_scattered
         if m.endswith("+gather"):
             e = bake_gather(scene, sun, optics, {0: e}, 1024, Silent(), world=world).per_prototype[0]
         dt = time.perf_counter() - t

@@ -1,12 +1,13 @@
-"""``--first-order march``: SPPG's once-scattered sun light from the leaves' exact direct light (lighting.first_order).
+"""``--first-order march``: SPPG's and LB's once-scattered sun light from the leaves' exact direct light (lighting.first_order).
 
 Per traced tree (the whole world, or each lone tree of a large forest, as the
 shadow rays and the gather) the leaves' exact direct light is scattered once
 (and the wood's, traced here) and marched through a coarse voxel medium of their triangles; each leaf's
 E_scattered is that times SPPG's all-orders-over-first factor at the leaf
-(``SPPGResult.orders``, the mean over the prototype's instances). Per
-prototype the result is the mean over its instances, as for the other
-per-leaf values; it replaces ``result.sppg.scattered`` of each bake.
+(``SPPGResult.orders``, the mean over the prototype's instances), or that
+plus the LB lattice's later orders at the leaf. Per prototype the result is
+the mean over its instances, as for the other per-leaf values; it replaces
+``result.sppg.scattered`` (SPP) or ``e_scattered`` (LB) of each bake.
 """
 
 from __future__ import annotations
@@ -47,16 +48,12 @@ def wood_direct(triangles: np.ndarray, leaf_of_triangle: np.ndarray, sun_directi
     return direct.solve(direct.DirectInputs(triangles, ids, n, sun_direction), direct.DirectParams(samples_per_leaf=k)).e_direct
 
 
-def march_sppg(scene: Scene, sun: Sun, optics: LeafOptics, bakes: list, direct: DirectBake, progress: Progress) -> list:
-    """``bakes`` (pipeline.spp.SppBake, baked with ``g_orders``) with SPPG's sun E_scattered from the march."""
+def marched_once(scene: Scene, sun: Sun, optics: LeafOptics, direct: DirectBake, progress: Progress,
+                 method: str) -> np.ndarray:
+    """(L_world, C) once-scattered sun irradiance of every leaf of every instance (lighting.first_order)."""
     world = direct.world
     n = int(world.offsets[-1])
-    missing = [b.index for b in bakes if b.result.orders is None]
-    if missing:
-        raise ValueError(f"the first-order march needs SPPG's orders factor (g_orders) for prototypes {missing}")
-    if not bakes or n == 0:
-        return bakes
-    progress.step(f"SPPG first order: {n:,} leaves marched through a {first_order.DEFAULT_RESOLUTION}-voxel medium")
+    progress.step(f"{method} first order: {n:,} leaves marched through a {first_order.DEFAULT_RESOLUTION}-voxel medium")
     e_direct = direct.result.e_direct
     once = np.zeros((n, len(optics.reflectance)))
     seconds = 0.0
@@ -70,12 +67,35 @@ def march_sppg(scene: Scene, sun: Sun, optics: LeafOptics, bakes: list, direct: 
             wood_direct=wood))
         once[leaves] = res.e_once
         seconds += res.seconds
+    log.info("%s first order: %s leaves marched, %.2f s", method, f"{n:,}", seconds)
+    return once
+
+
+def march_sppg(scene: Scene, sun: Sun, optics: LeafOptics, bakes: list, direct: DirectBake, progress: Progress) -> list:
+    """``bakes`` (pipeline.spp.SppBake, baked with ``g_orders``) with SPPG's sun E_scattered from the march: the
+    first order times 1 / (1 - (1 - s) rho), SPPG's later orders (``SPPGResult.orders``)."""
+    world = direct.world
+    missing = [b.index for b in bakes if b.result.orders is None]
+    if missing:
+        raise ValueError(f"the first-order march needs SPPG's orders factor (g_orders) for prototypes {missing}")
+    if not bakes or int(world.offsets[-1]) == 0:
+        return bakes
+    once = marched_once(scene, sun, optics, direct, progress, "SPPG")
     per_leaf = once * from_prototypes(world, {b.index: b.result.orders for b in bakes})
     counts = [p.leaves.count for p in scene.prototypes]
     means = prototype_means(world, per_leaf, len(counts), counts)
-    log.info("first order: %s leaves marched, %.2f s", f"{n:,}", seconds)
-    out = []
-    for b in bakes:
-        sppg = replace(b.result.sppg, scattered=means[b.index])
-        out.append(replace(b, result=replace(b.result, sppg=sppg), seconds=b.seconds + seconds / len(bakes)))
-    return out
+    return [replace(b, result=replace(b.result, sppg=replace(b.result.sppg, scattered=means[b.index]))) for b in bakes]
+
+
+def march_lb(scene: Scene, sun: Sun, optics: LeafOptics, bakes: list, later: dict[int, np.ndarray], direct: DirectBake,
+             progress: Progress) -> list:
+    """``bakes`` (pipeline.lb.LBPrototypeBake, first-collision sun) with E_scattered = the marched first order plus
+    ``later[p]``, the lattice's later orders at prototype p's leaves (pipeline.lb.later_orders: the lattice's
+    first order taken out, as in Nakajima & Tanaka's correction, and replaced per leaf rather than per node)."""
+    world = direct.world
+    if not bakes or int(world.offsets[-1]) == 0:
+        return bakes
+    once = marched_once(scene, sun, optics, direct, progress, "LB")
+    counts = [p.leaves.count for p in scene.prototypes]
+    means = prototype_means(world, once + from_prototypes(world, later), len(counts), counts)
+    return [replace(b, e_scattered=means[b.index]) for b in bakes]

@@ -4,6 +4,7 @@ from foliage_tools.bench.registry import BenchContext, MethodOutput, register
 from foliage_tools.pipeline.gather import bake_gather
 from foliage_tools.pipeline.lb import LBBakeParams, bake_lb
 from foliage_tools.pipeline.report import Silent
+from foliage_tools.bench.methods.lb import with_first_order as lb_first_order
 from foliage_tools.bench.methods.spp import with_first_order
 from foliage_tools.pipeline.spp import SppParams, bake_spp
 
@@ -15,8 +16,8 @@ LB_RESOLUTION = 32
 
 @register("lb+gather", f"final gather ({RAYS} rays per leaf) on LB at {LB_RESOLUTION}: exact first bounce, LB for the rest")
 def run_lb(ctx: BenchContext) -> MethodOutput:
-    bakes = bake_lb(ctx.scene, ctx.sun, LBBakeParams(optics=ctx.optics, sun=(ctx.sun.azimuth, ctx.sun.elevation),
-                                                     resolution=LB_RESOLUTION), ctx.warnings, Silent())
+    params = LBBakeParams(optics=ctx.optics, sun=(ctx.sun.azimuth, ctx.sun.elevation), resolution=LB_RESOLUTION)
+    bakes = lb_first_order(ctx, params, bake_lb(ctx.scene, ctx.sun, params, ctx.warnings, Silent()))
     g = bake_gather(ctx.scene, ctx.sun, ctx.optics, {b.index: b.e_scattered for b in bakes}, RAYS, Silent())
     return MethodOutput(e_direct={b.index: b.e_direct for b in bakes},
                         e_scattered={b.index: g.per_prototype[b.index] for b in bakes}, stats=g.stats(),
