@@ -281,22 +281,23 @@ def bench_table(scene: Path, s: dict) -> Table:
                    "steele2010 4.2 'we do not store data that will not be accessed'; relit light identical), or "
                    "lattice, every node (for a renderer that samples the bases away from the leaves). No effect with "
                    "--bases sun, whose lbSun keeps every node.")
-@click.option("--first-order", "first_order", type=click.Choice(["march", "field"]), default="field", show_default=True,
-              help="Where a sun bake's per-leaf once-scattered light (primvars:foliage:lb:scattered) comes from. march: "
-                   "each leaf's exact direct light (the shadow rays; the wood's too) scattered once by its r and t and "
-                   "marched through a 32-voxel medium of the leaves, plus the lattice's later orders at the leaf; "
-                   "field: the lattice field at the leaf, whose first order is that of the homogenised beam. Per-leaf "
-                   "E_scattered error at 64 on tree_small / the oak / the sapling 0.164 / 0.247 / 0.229 with march, "
-                   "0.260 / 0.291 / 0.289 with field, but in the uniform layer at a 30-degree sun its bottom depth bin "
-                   "reads +11 % (field +7 %), so field stays the default (README 'SPPG's first order'). The grids and "
-                   "lbIndirect stay the field; --bases all uses field.")
+@click.option("--first-order", "first_order", type=click.Choice(["march", "field"]), default=None,
+              help="Where a sun bake's per-leaf once-scattered light (primvars:foliage:lb:scattered) comes from. march "
+                   "(the default with --bases sun): each leaf's exact direct light (the shadow rays; the wood's too) "
+                   "scattered once by its r and t and marched through a 32-voxel medium of the leaves, plus the "
+                   "lattice's later orders at the leaf; field (the only choice with --bases all): the lattice field at "
+                   "the leaf, whose first order is that of the homogenised beam. Per-leaf E_scattered error at 64 on "
+                   "tree_small / the oak / the sapling 0.13 / 0.20 / 0.19 with march, 0.26 / 0.28 / 0.29 with field; "
+                   "both within 10 % of the exact solution in every depth bin of a uniform leaf layer (README 'LB with "
+                   "the marched first order'). The grids and lbIndirect stay the field.  [default: march; field with "
+                   "--bases all]")
 @gather_option("LB's scattered light", "primvars:foliage:lb:scattered and lbIndirect (then per leaf)")
 @volume_purpose_option
 @direct_options
 @bake_options
 @common_options
 def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, solver: str, absorption_scale: float, max_sweeps: int,
-       storage: str, grid_precision: str, base_extent: str, first_order: str, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+       storage: str, grid_precision: str, base_extent: str, first_order: str | None, gather: int | None, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
        as_json: bool, quiet: bool, verbose: int) -> None:
     """Lattice-Boltzmann light bake (geist2008, steele2010) per unique prototype.
 

@@ -35,8 +35,8 @@ def _runner(resolution: int, single_scatter: str = "exact", first_order: str = "
 
 for _res in RESOLUTIONS:
     register(f"lb-{_res}", f"lattice-Boltzmann D3Q19, {_res} nodes along the longest edge (geist2008), exact first "
-                           "order of scattering")(_runner(_res))
+                           "order of scattering of the homogenised beam (--first-order field)")(_runner(_res))
     register(f"lb-{_res}-march", f"lb-{_res} with the per-leaf first order marched from the exact direct light "
-                                 "(--first-order march)")(_runner(_res, first_order="march"))
+                                 "(--first-order march, foliage lb's default)")(_runner(_res, first_order="march"))
 register("lb-64-lattice1", "lattice-Boltzmann D3Q19 at 64 with the lattice's own first order of scattering "
                            "(no single-scattering correction)")(_runner(64, "lattice"))
