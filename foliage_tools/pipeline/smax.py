@@ -2,16 +2,21 @@
 
 boulanger2008 chapter 5: s_max(P, ω_j) for the 8 directions of eq. (5.28),
 τ (eq. 5.5 estimated as in sec. 5.6), then per-leaf E_direct and E_scattered
-(eqs. 5.7–5.8, 5.11, 5.24–5.26, 5.33) for the scene's sun; by default the
-scattered light lights its scatterers by the leaves' exact lit fractions and
-counts every order (``--scatter leaves``; :mod:`foliage_tools.lighting.boulanger`).
+(eqs. 5.7–5.8, 5.11, 5.24–5.26, 5.33) for the scene's sun. By default the
+scattered light's first order is the leaves' exact direct light scattered once
+and marched through a voxel medium of the leaves (``--scatter march``,
+:mod:`foliage_tools.lighting.first_order`, as ``spp`` and ``lb`` take it), and
+the later orders are counted by the envelope's recollision probability
+(:func:`foliage_tools.lighting.boulanger.higher_orders`); ``--scatter leaves``
+lights the thesis' one-bounce scatterers by the leaves' exact lit fractions
+instead, and ``paper`` is the thesis' eq. (5.24).
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import cast
 
@@ -25,6 +30,7 @@ from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
 from foliage_tools.pipeline.world import bake_world, prototype_means
 from foliage_tools.pipeline.direct import DirectBake, DirectChoice, bake_direct
+from foliage_tools.pipeline.first_order import marched_once
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
@@ -35,9 +41,11 @@ from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata,
 log = logging.getLogger(__name__)
 
 PATHS = ("auto", "reference", "fast")
-#: ``--scatter``: ``leaves`` lights the scatterers by the leaves' exact lit fractions and adds the higher orders
-#: (lighting.scatterer_sun, boulanger.higher_orders); ``paper`` is boulanger2008's one bounce, eq. (5.24).
-SCATTER = ("leaves", "paper")
+#: ``--scatter``: ``march`` takes the first order from the leaves' exact direct light marched through a voxel medium
+#: (lighting.first_order) and the later orders from the envelope's recollision probability (boulanger.higher_orders);
+#: ``leaves`` lights the thesis' one-bounce scatterers by the leaves' exact lit fractions and adds the same higher
+#: orders (lighting.scatterer_sun); ``paper`` is boulanger2008's one bounce, eq. (5.24).
+SCATTER = ("march", "leaves", "paper")
 
 
 @dataclass(frozen=True)
@@ -53,7 +61,7 @@ class SmaxParams:
     (reference below envelope.EnvelopeParams.auto_threshold leaves)."""
     direct: DirectChoice = DirectChoice()
     """``--direct``: what ``primvars:foliage:smax:direct`` holds (exact shadow rays by default, or eq. 5.7's own)."""
-    scatter: str = "leaves"
+    scatter: str = "march"
     """``--scatter``: see :data:`SCATTER`."""
 
     def __post_init__(self) -> None:
@@ -67,7 +75,7 @@ class SmaxParams:
     @property
     def needs_rays(self) -> bool:
         """Whether the bake traces the exact direct light (for its E_direct or for its scattered light)."""
-        return self.direct.mode == "rays" or self.scatter == "leaves"
+        return self.direct.mode == "rays" or self.scatter in ("leaves", "march")
 
 
 @dataclass(frozen=True)
@@ -106,7 +114,7 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
     none is given."""
     sky = sky_radiance(scene)
     lit = None
-    if params.scatter == "leaves":
+    if params.scatter in ("leaves", "march"):
         exact = exact if exact is not None else bake_direct(scene, sun, params.direct, progress)
         lit = lit_fractions(scene, exact)
     baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
@@ -120,7 +128,8 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
             proto.leaves.centers, proto.leaves.normals, proto.leaves.areas, up=up_local, params=envelope.EnvelopeParams(path=params.path)
         )
         t0 = time.perf_counter()
-        t_bar = None if lit is None else scatterer_sun.scatterer_transmission(
+        # march replaces the one bounce, so its scatterers need no sun; it keeps the higher orders' p (all_orders)
+        t_bar = None if lit is None or params.scatter != "leaves" else scatterer_sun.scatterer_transmission(
             proto.leaves.centers, np.clip(lit[i], 0.0, 1.0), env.tau, up=up_local,
             leaf_size=float(np.sqrt(np.mean(proto.leaves.areas))))
         scatter_seconds = time.perf_counter() - t0
@@ -142,6 +151,35 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
         log.info("smax <%s>: %d leaves, %s path, tau %.3g, scatterers %.2f s", proto.path, proto.leaves.count,
                  params.path, float(env.tau), scatter_seconds)
         out.append(SmaxBake(i, env, light, scatter_seconds))
+    if params.scatter == "march" and out:
+        assert exact is not None  # traced above for march
+        out = _marched(scene, sun, params.optics, out, exact, progress)
+    return out
+
+
+def _marched(scene: Scene, sun: Sun, optics: LeafOptics, bakes: list[SmaxBake], exact: DirectBake,
+             progress: Progress) -> list[SmaxBake]:
+    """``bakes`` with E_scattered = the marched first order (lighting.first_order, the mean over a prototype's
+    instances) times 1 / (1 - ω p), the later orders at the envelope's recollision probability p
+    (boulanger.higher_orders, the factor ``--scatter leaves`` applies to its one bounce)."""
+    t0 = time.perf_counter()
+    once = marched_once(scene, sun, optics, exact, progress, "s_max")
+    counts = [p.leaves.count for p in scene.prototypes]
+    means = prototype_means(exact.world, once, len(counts), counts)
+    albedo = np.asarray(optics.reflectance, dtype=np.float64) + np.asarray(optics.transmittance, dtype=np.float64)
+    seconds = time.perf_counter() - t0
+    out = []
+    for b in bakes:
+        light = b.lighting
+        p = light.stats["recollision_probability"]
+        scattered = (means[b.index] * boulanger.higher_orders(albedo, float(p))).astype(np.float32)
+        old = np.asarray(light.e_scattered, dtype=np.float64)
+        # the front face keeps the share the envelope model gives it (the march sums the two faces)
+        share = np.divide(np.asarray(light.e_scattered_front, dtype=np.float64), old, out=np.full(old.shape, 0.5),
+                          where=old > 0)
+        light = replace(light, e_scattered=scattered, e_scattered_front=(scattered * share).astype(np.float32),
+                        stats={**light.stats, "first_order": "march"})
+        out.append(SmaxBake(b.index, b.envelope, light, b.scatter_seconds + seconds / len(bakes)))
     return out
 
 

@@ -89,7 +89,7 @@ def test_bench_methods_take_a_family_name_for_its_variants():
     # the exact first order of scattering
     r = foliage("bench", EXAMPLE, "--methods", "lb,smax", "--paths", "2000", "--json")
     assert r.returncode == 0, r.stderr
-    assert sorted(m["name"] for m in json.loads(r.stdout)["stats"]["methods"]) == ["lb-32", "lb-32-march", "lb-64", "lb-64-lattice1", "lb-64-march", "smax", "smax-paper"]
+    assert sorted(m["name"] for m in json.loads(r.stdout)["stats"]["methods"]) == ["lb-32", "lb-32-march", "lb-64", "lb-64-lattice1", "lb-64-march", "smax", "smax-leaves", "smax-paper"]
     bad = foliage("bench", EXAMPLE, "--methods", "l", "--paths", "2000")
     assert bad.returncode == 2 and "family" in bad.stderr
 

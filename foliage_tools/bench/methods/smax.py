@@ -17,9 +17,15 @@ def _run(ctx: BenchContext, scatter: str) -> MethodOutput:
     )
 
 
-@register("smax", "Boulanger envelope s_max, the scatterers lit by the leaves' exact lit fractions, every order "
-                  "(foliage smax's default)")
+@register("smax", "Boulanger envelope s_max, the first order marched from the exact direct light, the later orders "
+                  "by the envelope's recollision probability (foliage smax's default, --scatter march)")
 def run(ctx: BenchContext) -> MethodOutput:
+    return _run(ctx, "march")
+
+
+@register("smax-leaves", "Boulanger envelope s_max, the thesis' one bounce with the scatterers lit by the leaves' "
+                         "exact lit fractions, every order (foliage smax --scatter leaves)")
+def run_leaves(ctx: BenchContext) -> MethodOutput:
     return _run(ctx, "leaves")
 
 
