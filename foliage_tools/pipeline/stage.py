@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from foliage_tools.errors import InputError
+from foliage_tools.errors import InputError, UsageError
 from foliage_tools.geometry.sun import Sun, choose_sun, to_prototype_space
 from foliage_tools.pipeline.density import require_leaves
 from foliage_tools.pipeline.report import Progress, Report
@@ -26,7 +26,17 @@ def begin_bake(command: str, path: Path, out: Path | None, sun_flag, progress: P
     report.warnings.extend(warnings)
     require_leaves(scene, path)
     sun = choose_sun(scene.lights, scene.up_axis, sun_flag, report.warnings)
+    require_sun_above_horizon(path, scene, sun)
     return report, scene, sun
+
+
+def require_sun_above_horizon(path: Path, scene: Scene, sun: Sun) -> None:
+    """Every bake lights leaves by a sun above the horizon: one at or below it (a --sun elevation <= 0, or a
+    DistantLight pointing up) is refused before any work, the same way by every command."""
+    if float(np.dot(sun.direction, np.asarray(scene.up, dtype=np.float64))) <= 1e-9:
+        where = "--sun" if sun.source == "--sun" else f"the DistantLight <{sun.source}> of @{path}@" if sun.source != "default" else "the default sun"
+        raise UsageError(f"the sun from {where} is at or below the horizon (elevation {sun.elevation:g} degrees); "
+                         "the bakes need a sun above it: give --sun AZ,EL with EL > 0.")
 
 
 def sun_in_prototype(scene: Scene, index: int, sun: Sun, warnings: list[str]) -> np.ndarray:

@@ -102,7 +102,7 @@ def test_g_factor_options_are_flags_recorded_in_the_report_and_bad_values_are_us
 
 def test_sun_below_the_horizon_is_a_usage_error(tmp_path):
     r = foliage("spp", EXAMPLE, "-o", tmp_path / "o.usda", "--sun", "0,-10", "--resolution", "8")
-    assert r.returncode == 2 and "below the horizon" in r.stderr
+    assert r.returncode == 2 and "below the horizon" in r.stderr  # tests/integration/test_sun_horizon.py: every bake
 
 
 def test_depth_auto_counts_rays_on_small_scenes_and_integrates_the_grid_on_large_ones(monkeypatch):
