@@ -478,9 +478,9 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "times G (shinya2013 eq. 28). The slab has no sides, so it keeps light a finite crown loses "
                    "sideways: on the oak its first order reads 1.1 -> 2.0x the reference from top to bottom, "
                    "which no G constant over depth can mend. Per-leaf E_scattered error on tree_small / the oak / "
-                   "the sapling 0.209 / 0.245 / 0.253 with march, 0.223 / 0.328 / 0.306 with slab; uniform layer "
-                   "within -1.8 ... +7.3 % in every depth bin (README 'SPPG's first order'). Costs ~0.3 s on "
-                   "the oak. With march, G (and --g-weights) no longer scales the sun's scattered light; it still "
+                   "the sapling 0.134 / 0.201 / 0.199 with march, 0.223 / 0.328 / 0.306 with slab; uniform layer "
+                   "within -1.3 ... +4.3 % of the reference in every depth bin (README 'SPPG's first order'). "
+                   "Costs ~0.3 s on the oak. With march, G (and --g-weights) no longer scales the sun's scattered light; it still "
                    "scales the sky's, and sppGFactor is G. [default: march with --g-orders, slab without]")
 @click.option("--g-resolution", "g_resolution", type=click.IntRange(min=0), default=None,
               help="Measure the G-factor's depths through a coarse leaf-area density grid of this many voxels along the "

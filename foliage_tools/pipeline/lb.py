@@ -180,7 +180,7 @@ class LBBakeParams:
             raise UsageError(f"--first-order must be one of {', '.join(FIRST_ORDERS)}, got {self.first_order!r}.")
         if self.first_order == "march" and not can_march:
             raise UsageError("--first-order march needs a sun bake with the first-collision sun (--bases sun, the "
-                             "default); a relightable bake (--bases all) and a boundary sun take --first-order field.")
+                             "default); a relightable bake (--bases all), whose bases enter as boundary light, takes --first-order field.")
         if self.single_scatter not in SINGLE_SCATTER:
             raise UsageError(f"single scatter must be one of {', '.join(SINGLE_SCATTER)}, got {self.single_scatter!r}.")
 
