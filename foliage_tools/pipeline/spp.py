@@ -188,11 +188,15 @@ class SppParams:
         exact = (self.model or ("spp" if self.refine else "exact")) == "exact"
         if self.g_orders is None:
             object.__setattr__(self, "g_orders", exact)
+        if self.first_order == "march" and not self.gfactor:
+            raise UsageError("--first-order march is SPPG's first order; --no-gfactor bakes SPP, whose first order is "
+                             "the slab's: drop one of the two.")
         if self.first_order is None:
-            object.__setattr__(self, "first_order", "march" if self.g_orders else "slab")
+            object.__setattr__(self, "first_order", "march" if self.g_orders and self.gfactor else "slab")
         if self.first_order == "march" and not self.g_orders:
-            raise UsageError("--first-order march takes the later orders from --g-orders; give --g-orders, or "
-                             "--first-order slab with --no-g-orders.")
+            implied = " (--model spp and --refine take --no-g-orders unless --g-orders is given)" if not exact else ""
+            raise UsageError(f"--first-order march takes the later orders from --g-orders{implied}; give --g-orders, "
+                             "or --first-order slab.")
         if self.g_resolution is None:
             object.__setattr__(self, "g_resolution", G_RESOLUTION if exact else 0)
         if self.g_resolution and not (4 <= self.g_resolution <= 512):

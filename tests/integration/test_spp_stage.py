@@ -135,3 +135,18 @@ def test_spp_reuses_the_density_of_an_earlier_stage_on_the_same_lattice(tmp_path
     assert fresh.stats["prototypes"][0]["density"] == "computed" and reused.stats["prototypes"][0]["density"] == "input"
     # float32 storage of the grid: the same G-factor up to that round-off
     assert abs(reused.stats["prototypes"][0]["gfactor_mean"] - fresh.stats["prototypes"][0]["gfactor_mean"]) < 1e-5
+
+
+def test_first_order_march_where_it_cannot_apply_is_a_usage_error():
+    # a new user's trial: --no-gfactor took --first-order march and ignored it (the report said march); --model spp
+    # asked for --g-orders without saying that --model spp had turned it off
+    from foliage_tools.errors import UsageError
+    from foliage_tools.lighting.optics import parse_leaf_optics
+    from foliage_tools.pipeline.spp import SppParams
+
+    optics = parse_leaf_optics(None)
+    with pytest.raises(UsageError, match="--no-gfactor"):
+        SppParams(optics=optics, gfactor=False, first_order="march")
+    assert SppParams(optics=optics, gfactor=False).first_order == "slab"  # what it bakes, as the report says
+    with pytest.raises(UsageError, match="--model spp"):
+        SppParams(optics=optics, model="spp", first_order="march")
