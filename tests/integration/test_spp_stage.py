@@ -140,6 +140,8 @@ def test_spp_reuses_the_density_of_an_earlier_stage_on_the_same_lattice(tmp_path
 def test_first_order_march_where_it_cannot_apply_is_a_usage_error():
     # a new user's trial: --no-gfactor took --first-order march and ignored it (the report said march); --model spp
     # asked for --g-orders without saying that --model spp had turned it off
+    import pytest
+
     from foliage_tools.errors import UsageError
     from foliage_tools.lighting.optics import parse_leaf_optics
     from foliage_tools.pipeline.spp import SppParams
