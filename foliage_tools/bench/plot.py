@@ -37,8 +37,10 @@ def write_plot(path: Path, stats: dict, title: str) -> Path:
     # methods had about the same seconds and error); a vertical line joins its two errors
     shown = [m for m in stats["methods"]
              if m["available"] and m["rel_rms_total"] is not None and m["rel_rms_scattered"] is not None]
+    # tab20: a colour of its own for each of the bench's 20 methods (C0-C9 repeated from the eleventh on)
+    palette = plt.get_cmap("tab20")
     for k, m in enumerate(shown):
-        colour = f"C{k % 10}"
+        colour = palette(k % palette.N)
         total, scattered = max(m["rel_rms_total"], 1e-6), max(m["rel_rms_scattered"], 1e-6)
         ax.loglog([m["seconds"]] * 2, [total, scattered], "-", color=colour, lw=0.8, alpha=0.6)
         ax.loglog(m["seconds"], total, "o", color=colour, label=m["name"])
