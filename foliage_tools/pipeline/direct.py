@@ -117,6 +117,16 @@ def bake_direct(scene: Scene, sun: Sun, choice: DirectChoice, progress: Progress
     world = world if world is not None else bake_world(scene)
     n = int(world.offsets[-1])
     samples = choice.samples if choice.samples is not None else auto_samples(n)
+    res = trace_world(world, sun, samples, choice.seed, progress)
+    counts = [p.leaves.count for p in scene.prototypes]
+    per_leaf = np.repeat(res.e_direct[:, None], 3, axis=1)
+    instances = instance_direct(scene, sun, progress, seed=choice.seed) if world.lone else None
+    return DirectBake(world, res, prototype_means(world, per_leaf, len(counts), counts), instances)
+
+
+def trace_world(world: World, sun: Sun, samples: int, seed: int, progress: Progress) -> direct.DirectResult:
+    """Shadow rays from every leaf of ``world``: the whole world, or each lone tree of a lone world alone."""
+    n = int(world.offsets[-1])
     alone = " (each prototype alone: the forest lattice adds the stand's shade)" if world.lone else ""
     progress.step(f"direct sunlight: {samples} shadow rays per leaf through {len(world.triangles):,} triangles{alone}", total=n)
     done = [0]
@@ -135,14 +145,11 @@ def bake_direct(scene: Scene, sun: Sun, choice: DirectChoice, progress: Progress
             advance(base + d, n)
 
         parts.append(direct.solve(direct.DirectInputs(tris, ids, count, sun.direction),
-                                  direct.DirectParams(samples_per_leaf=samples, seed=choice.seed),
+                                  direct.DirectParams(samples_per_leaf=samples, seed=seed),
                                   progress=on_progress))
     res = parts[0] if len(parts) == 1 else _joined(parts)  # (a lone world has leaves: bake_world)
     log.info("direct: %d shadow rays per leaf over %s leaves, %.2f s", samples, f"{n:,}", res.seconds)
-    counts = [p.leaves.count for p in scene.prototypes]
-    per_leaf = np.repeat(res.e_direct[:, None], 3, axis=1)
-    instances = instance_direct(scene, sun, progress, seed=choice.seed) if world.lone else None
-    return DirectBake(world, res, prototype_means(world, per_leaf, len(counts), counts), instances)
+    return res
 
 
 #: Shadow rays per instance for a forest's instance means: a power of two in [INSTANCE_MIN, INSTANCE_MAX], the most

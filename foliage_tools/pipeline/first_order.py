@@ -20,9 +20,8 @@ import numpy as np
 
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.lighting import direct, first_order
-from foliage_tools.lighting import direct as direct_rays
 from foliage_tools.lighting.optics import LeafOptics
-from foliage_tools.pipeline.direct import DirectBake
+from foliage_tools.pipeline.direct import DirectBake, DirectChoice, trace_world
 from foliage_tools.pipeline.instances import from_prototypes
 from foliage_tools.pipeline.report import Progress
 from foliage_tools.pipeline.world import World, assemble, lone_trees, prototype_means, traced_parts
@@ -64,14 +63,8 @@ def marched_once(scene: Scene, sun: Sun, optics: LeafOptics, direct: DirectBake,
     world = direct.world
     if not world.lone and len(scene.instances) > len({inst.prototype for inst in scene.instances}):
         lone_world = replace(assemble(lone_trees(scene)), lone=True)
-        progress.step(f"{method} first order: each prototype's direct light alone")
-        lone_direct = np.zeros(int(lone_world.offsets[-1]))
-        for tris, ids, count, leaves in traced_parts(lone_world):
-            if count:
-                params = direct_rays.DirectParams(samples_per_leaf=int(direct.result.samples_per_leaf))
-                lone_direct[leaves] = direct_rays.solve(direct_rays.DirectInputs(tris, ids, count, sun.direction),
-                                                        params).e_direct
-        once_lone = _march_world(lone_world, lone_direct, sun, optics, progress, method)
+        lone = trace_world(lone_world, sun, int(direct.result.samples_per_leaf), DirectChoice().seed, progress)
+        once_lone = _march_world(lone_world, lone.e_direct, sun, optics, progress, method)
         per_proto = prototype_means(lone_world, once_lone, len(scene.prototypes),
                                     [p.leaves.count for p in scene.prototypes])
         return from_prototypes(world, dict(enumerate(per_proto)))
