@@ -33,6 +33,7 @@ from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.bench import depth_thickness
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.first_order import march_sppg
+from foliage_tools.pipeline.gather import bake_gather, resolve_rays
 from foliage_tools.pipeline.instances import from_prototypes
 from foliage_tools.pipeline.reference import ReferenceParams, bake_reference
 from foliage_tools.pipeline.report import Silent
@@ -105,13 +106,21 @@ def run(path: Path, args) -> None:
                 if march:  # the first order from the exact direct light (--first-order march)
                     bakes = march_sppg(scene, sun, optics, bakes, exact, Silent())
                 r = {b.index: b.result for b in bakes}
+                gathered = None
+                if "gather" in more:  # spp's default final gather (--gather auto) on SPPG's light
+                    rays = resolve_rays(None, int(world.offsets[-1]), [])
+                    gathered = bake_gather(scene, sun, optics, {i: v.sppg.scattered for i, v in r.items()}, rays, Silent(),
+                                           world=world)
                 g = from_prototypes(world, {i: np.repeat(v.gfactor[:, None], 3, axis=1) for i, v in r.items()})[:, 0]
                 for which in ("ss", "spp", "sppg"):
                     own = from_prototypes(world, {i: getattr(v, which).direct for i, v in r.items()})
                     scat = from_prototypes(world, {i: getattr(v, which).scattered for i, v in r.items()})
                     name = f"{which}{'-paper' if model == 'spp' else ''}"
                     if which == "sppg":
-                        name += f" ({weights}, g{gres}{', orders' if 'orders' in more else ''}{', march' if march else ''})"
+                        tags = [t for t in ("orders", "march", "gather") if t in more]
+                        name += f" ({', '.join([weights, f'g{gres}', *tags])})"
+                        if gathered is not None:
+                            scat = gathered.result.e_scattered
                     if (which == "ss" and model == "exact") or (which != "sppg" and k > 0):
                         continue  # ss and spp do not depend on G
                     e = binned_rms(ex_dir + scat, ref_total, depth, thick)
@@ -140,8 +149,8 @@ def main() -> None:
                     help="depth paths of the rows: rays, grid (--depth-resolution auto) or gridN (--depth-resolution N)")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/bench_sppg_table3"))
     ap.add_argument("--g-variants", default="paper:g0,radiance:g0,paper:g16,radiance:g16",
-                    help="G-factor variants of the sppg rows, WEIGHTS:gRES[:orders[:march]] (--g-weights, --g-resolution, g0: per leaf; "
-                         "--g-orders; --first-order march, else slab)")
+                    help="G-factor variants of the sppg rows, WEIGHTS:gRES[:orders[:march[:gather]]] (--g-weights, --g-resolution, g0: "
+                         "per leaf; --g-orders; --first-order march, else slab; gather: spp's --gather auto on top)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     for s in args.scenes:

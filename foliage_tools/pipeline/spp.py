@@ -59,12 +59,12 @@ from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.lighting.phase import canopy_bilambertian_phase
 from foliage_tools.params import DEFAULT_RESOLUTION, DensityParams, check_resolution
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, density_grid, vdb_path
-from foliage_tools.pipeline.direct import DirectChoice, bake_direct
+from foliage_tools.pipeline.direct import DirectBake, DirectChoice, bake_direct
 from foliage_tools.pipeline.first_order import march_sppg
-from foliage_tools.pipeline.gather import bake_gather, check_gather, resolve_rays
+from foliage_tools.pipeline.gather import GatherBake, bake_gather, check_gather, resolve_rays
 from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
-from foliage_tools.pipeline.world import bake_world
+from foliage_tools.pipeline.world import World, bake_world
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
@@ -507,13 +507,25 @@ def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], pro
     return out
 
 
-def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | None = None) -> Report:
-    progress = progress or Silent()
-    report, scene, sun = begin_bake("spp", path, out, params.sun, progress)
+@dataclass(frozen=True)
+class SppLight:
+    """What ``foliage spp`` writes, before it is written: the bakes (SPPG's sun light marched when
+    ``first_order`` is march), the exact direct light (None with ``--direct volume``), the world and the final
+    gather (None when off)."""
+
+    bakes: list[SppBake]
+    exact: DirectBake | None
+    world: World
+    gathered: GatherBake | None
+    rays: int
+    best_name: str
+
+
+def spp_light(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], progress: Progress) -> SppLight:
+    """Every light ``run_spp`` writes: SPP/SPPG per prototype, the exact direct light, the marched first order
+    and the final gather, as the command computes them (also what the tests and benchmarks score)."""
     params = resolve_depth(scene, params)
-    edits = LayerEdits()
-    protos: list[dict] = []
-    bakes = bake_spp(scene, sun, params, report.warnings, progress)
+    bakes = bake_spp(scene, sun, params, warnings, progress)
     exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
     best_name = "sppg" if params.gfactor else "spp"
     if params.gfactor and params.first_order == "march":  # its source is the exact direct light, whatever --direct writes
@@ -521,7 +533,7 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         bakes = march_sppg(scene, sun, params.optics, bakes, exact_source, progress)
     gathered = None
     world = exact.world if exact else bake_world(scene)
-    rays = resolve_rays(params.gather, int(world.offsets[-1]), report.warnings)
+    rays = resolve_rays(params.gather, int(world.offsets[-1]), warnings)
     if rays:
         # the later bounces from the method the gather replaces (SPPG with --gfactor): with the depths through the
         # coarse grid (depth_resolution) the gather on SPPG is within 3.4 % in every depth bin of the uniform layer
@@ -529,6 +541,18 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         # sapling (on SPP 0.086 / 0.094 / 0.098; README)
         gathered = bake_gather(scene, sun, params.optics, {b.index: getattr(b.result, best_name).scattered for b in bakes},
                                rays, progress, world=world)
+    return SppLight(bakes, exact, world, gathered, rays, best_name)
+
+
+def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | None = None) -> Report:
+    progress = progress or Silent()
+    report, scene, sun = begin_bake("spp", path, out, params.sun, progress)
+    params = resolve_depth(scene, params)
+    edits = LayerEdits()
+    protos: list[dict] = []
+    light = spp_light(scene, sun, params, report.warnings, progress)
+    bakes, exact, world, gathered, rays, best_name = (light.bakes, light.exact, light.world, light.gathered, light.rays,
+                                                      light.best_name)
     for bake in bakes:
         proto = scene.prototypes[bake.index]
         res = bake.result
