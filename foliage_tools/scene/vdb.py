@@ -17,13 +17,17 @@ import numpy as np
 
 from foliage_tools.errors import InputError
 
-try:
-    import pyopenvdb as _vdb
-except ImportError as exc:  # pragma: no cover - environment problem, reported clearly
-    raise ImportError(
-        "pyopenvdb is missing: install Debian's python3-openvdb and make the venv with "
-        "--system-site-packages (`make setup` does both)."
-    ) from exc
+def _openvdb():
+    """Debian's ``pyopenvdb``, imported at first use, so that importing this module (and the pure numerics that
+    import the pipeline's modules) does not need it (issue #20)."""
+    try:
+        import pyopenvdb
+    except ImportError as exc:  # pragma: no cover - environment problem, reported clearly
+        raise ImportError(
+            "pyopenvdb is missing: install Debian's python3-openvdb and make the venv with "
+            "--system-site-packages (`make setup` does both)."
+        ) from exc
+    return pyopenvdb
 
 
 #: OpenVDB grid class of each grid a bake writes (DESIGN.md section 3, grid names): ``fog volume`` says "a density
@@ -41,7 +45,12 @@ def grid_class(name: str) -> str:
 #: The largest finite IEEE binary16 value (what ``Grid.half`` can store); above it OpenVDB writes infinity.
 HALF_MAX = 65504.0
 
-_GRID_CLASSES = {"fog volume": _vdb.GridClass.FOG_VOLUME, "unknown": _vdb.GridClass.UNKNOWN}
+
+
+def _grid_class_enum(name: str):
+    """OpenVDB's ``GridClass`` value of ``grid_class(name)``."""
+    gc = _openvdb().GridClass
+    return gc.FOG_VOLUME if grid_class(name) == "fog volume" else gc.UNKNOWN
 
 
 @dataclass(frozen=True)
@@ -79,14 +88,14 @@ def to_vdb(grid: Grid):
         raise ValueError(f"grid {grid.name!r} holds values beyond {HALF_MAX:g}, the largest half float: they would be "
                          "stored as infinite; write it as float")
     if values.ndim == 4:
-        g = _vdb.Vec3SGrid()
+        g = _openvdb().Vec3SGrid()
         g.copyFromArray(values, ijk=(0, 0, 0), tolerance=(0.0, 0.0, 0.0))
     else:
-        g = _vdb.FloatGrid()
+        g = _openvdb().FloatGrid()
         g.copyFromArray(values, ijk=(0, 0, 0), tolerance=0.0)
-    g.transform = _vdb.createLinearTransform(_index_to_world(grid.origin, grid.voxel_size))
+    g.transform = _openvdb().createLinearTransform(_index_to_world(grid.origin, grid.voxel_size))
     g.name = grid.name
-    g.gridClass = _GRID_CLASSES[grid_class(grid.name)]
+    g.gridClass = _grid_class_enum(grid.name)
     for key, value in grid.metadata.items():
         g[key] = value
     if grid.half:  # only then: even False adds is_saved_as_half_float to the metadata, and float files stay as they were
@@ -110,7 +119,7 @@ def write_vdb(path: Path, grids: list[Grid], *, metadata: dict | None = None, ca
     names = [g.name for g in written]
     if len(set(names)) != len(names):
         raise ValueError(f"grid names must be unique within a file, got {names}")
-    _vdb.write(str(path), grids=written, metadata=dict(metadata or {}))
+    _openvdb().write(str(path), grids=written, metadata=dict(metadata or {}))
 
 
 def _read_raw(path: Path, name: str):
@@ -118,17 +127,17 @@ def _read_raw(path: Path, name: str):
     if name not in grid_names(path):
         raise InputError(f"@{path}@ has no grid named {name!r}.")
     try:
-        g = _vdb.read(str(path), name)
+        g = _openvdb().read(str(path), name)
     except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
         raise InputError(f"@{path}@: grid {name!r} cannot be read ({exc}).") from None
-    g.gridClass = _GRID_CLASSES[grid_class(name)]
+    g.gridClass = _grid_class_enum(name)
     return g
 
 
 def grid_classes(path: Path) -> dict[str, str]:
     """{grid name: OpenVDB grid class name} of a ``.vdb`` (``fog volume``, ``unknown``, ...)."""
     try:
-        return {g.name: str(g.gridClass) for g in _vdb.readAllGridMetadata(str(path))}
+        return {g.name: str(g.gridClass) for g in _openvdb().readAllGridMetadata(str(path))}
     except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
         raise InputError(f"@{path}@: not a readable OpenVDB file ({exc}).") from None
 
@@ -136,7 +145,7 @@ def grid_classes(path: Path) -> dict[str, str]:
 def file_metadata(path: Path) -> dict:
     """The file-level metadata of a ``.vdb`` (``write_vdb``'s ``metadata``); empty if it cannot be read."""
     try:
-        return dict(_vdb.readMetadata(str(path)))
+        return dict(_openvdb().readMetadata(str(path)))
     except Exception:  # pyopenvdb raises assorted types for corrupt files; the grid readers report those
         return {}
 
@@ -147,7 +156,7 @@ def grid_names(path: Path) -> list[str]:
     if not path.is_file():
         raise InputError(f"@{path}@: no such OpenVDB file.")
     try:
-        return [g.name for g in _vdb.readAllGridMetadata(str(path))]
+        return [g.name for g in _openvdb().readAllGridMetadata(str(path))]
     except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
         raise InputError(f"@{path}@: not a readable OpenVDB file ({exc}).") from None
 
@@ -183,14 +192,14 @@ def read_grid(path: Path, name: str) -> Grid:
     if name not in grid_names(path):
         raise InputError(f"@{path}@ has no grid named {name!r}.")
     try:
-        g = _vdb.read(str(path), name)
+        g = _openvdb().read(str(path), name)
     except Exception as exc:
         raise InputError(f"@{path}@: grid {name!r} cannot be read ({exc}).") from None
     lo, hi = g.evalActiveVoxelBoundingBox()
     if g.activeVoxelCount() == 0:
         lo, hi = (0, 0, 0), (0, 0, 0)
     shape = tuple(int(b - a + 1) for a, b in zip(lo, hi))
-    if isinstance(g, _vdb.Vec3SGrid):
+    if isinstance(g, _openvdb().Vec3SGrid):
         arr = np.zeros(shape + (3,), dtype=np.float32)
     else:
         arr = np.zeros(shape, dtype=np.float32)

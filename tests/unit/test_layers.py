@@ -104,3 +104,11 @@ def test_the_scan_sees_imports():
     assert "pxr" in found
     graph_edges = sum(1 for m, _, tree in _modules() for _ in _imports(m, tree, top_level_only=True))
     assert graph_edges > 200
+
+
+def test_openvdb_is_imported_at_use_only():
+    # pyopenvdb comes from a Debian package, not pip: a module that imports it at import time makes every module
+    # importing that one (the pipeline, the tests of pure numerics) need it. scene/vdb.py imports it in its functions.
+    top = [(name, line) for name, _, tree in _modules() for mod, line in _imports(name, tree, top_level_only=True)
+           if _within(mod, ("pyopenvdb", "openvdb"))]
+    assert not top, top
