@@ -210,7 +210,7 @@ def base_fields(total: np.ndarray, grid: GridSpec, proto, extent: str) -> tuple[
     nodes they keep (``LBBakeParams.base_extent``).
 
     ``leaves``: zero (so inactive, not stored, in the sparse ``.vdb``) away from the nodes the relighting reads: the
-    trilinear stencils of every leaf triangle's corners (what ``pipeline.preview.load_lb_bases`` samples) and every
+    trilinear stencils of every leaf triangle's corners (what ``pipeline.baked_light.load_lb_bases`` samples) and every
     leaf's centre (the per-leaf relighting), with the lattice's shape and origin recorded so a reader can put the
     grid back on it (``scene.vdb.on_lattice``)."""
     fields = total.astype(np.float32)

@@ -119,7 +119,7 @@ def test_base_extent_leaves_stores_the_bases_where_the_relighting_reads_them_and
 
     from pxr import Usd
 
-    from foliage_tools.pipeline.preview import load_lb_bases
+    from foliage_tools.pipeline.baked_light import load_lb_bases
     from foliage_tools.pipeline.report import Silent
     from foliage_tools.pipeline.stage import begin_bake
 
@@ -241,7 +241,7 @@ def test_primvar_light_records_its_sun_and_the_preview_warns_when_drawn_under_an
     from pxr import Usd
 
     from foliage_tools.geometry.sun import direction_from_angles
-    from foliage_tools.pipeline.preview import baked_sun_mismatches
+    from foliage_tools.pipeline.baked_light import baked_sun_mismatches
     from foliage_tools.scene.read import read_scene
 
     out = tmp_path / "l.usda"
@@ -262,7 +262,7 @@ def test_preview_relights_the_bases_and_reproduces_the_baked_sun(tmp_path):
     """The preview's lb bases (grids + recomputed never-scattered part), blended for the bake's own sun
     in the prototype frame, give the lbIndirect the bake wrote at every leaf vertex."""
     from foliage_tools.lighting.lattice import barycentric_weights
-    from foliage_tools.pipeline.preview import corner_values, load_lb_bases
+    from foliage_tools.pipeline.baked_light import corner_values, load_lb_bases
     from foliage_tools.scene.primvars import read_mesh_primvars
     from foliage_tools.scene.read import read_scene
     from foliage_tools.geometry.sun import direction_from_angles

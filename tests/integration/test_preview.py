@@ -17,7 +17,8 @@ import pytest
 from click.testing import CliRunner
 
 from foliage_tools.errors import InputError, UsageError
-from foliage_tools.pipeline.preview import PreviewParams, choose_lighting, load_method_data, parse_size, parse_sun, run_preview
+from foliage_tools.pipeline.baked_light import load_method_data
+from foliage_tools.pipeline.preview import PreviewParams, choose_lighting, parse_size, parse_sun, run_preview
 from foliage_tools.preview.camera import bounds_corners, direction_from_angles, orbit_camera
 from foliage_tools.preview.compare import false_colour, relative_error
 from foliage_tools.preview.optics import LeafOptics, SurfaceOptics
@@ -362,7 +363,7 @@ def test_smax_method_evaluates_the_baked_envelope_like_the_bake(tmp_path):
 
     from foliage_tools.lighting.optics import parse_leaf_optics
     from foliage_tools.pipeline.direct import DirectChoice
-    from foliage_tools.pipeline.preview import load_smax_data
+    from foliage_tools.pipeline.baked_light import load_smax_data
     from foliage_tools.pipeline.smax import SmaxParams, run_smax
 
     src = crown_stage(tmp_path / "crown.usda", n=200)
