@@ -213,6 +213,7 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
     table = own if isinstance(own, dict) else {}
     entries = [(k, v, False) for k, v in data.items() if not isinstance(v, dict)] + [(k, v, True) for k, v in table.items()]
     defaults = {}
+    params = {p.name: p for p in ctx.command.params if p.name}
     for key, val, in_table in entries:
         name = key.replace("-", "_")
         if name not in known:
@@ -223,6 +224,17 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
                 f"@{value}@: unknown key {key!r} for `foliage {ctx.info_name}`; known: {listed}.",
                 ctx=ctx, param_hint="--config",
             )
+        param = params.get(known[name])
+        if param is not None:  # a bad value names the file and the key, not only the flag it stands for
+            try:
+                param.type_cast_value(ctx, val)
+            except click.BadParameter as exc:
+                where = f"key {key!r} of its [{ctx.info_name}] table" if in_table else f"top-level key {key!r}"
+                hint = "" if in_table else (
+                    f" A top-level key applies to every command that has it; to set it for one command, put it in "
+                    f"that command's table (e.g. [{ctx.info_name}]).")
+                raise click.BadParameter(f"@{value}@, {where}: {exc.format_message()}{hint}", ctx=ctx,
+                                         param_hint="--config") from None
         defaults[known[name]] = val
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
     ctx.meta["foliage.config"] = str(value)  # named by errors in the values it set

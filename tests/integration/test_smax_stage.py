@@ -114,6 +114,14 @@ def test_config_keys_are_long_option_names_and_one_file_serves_every_command(tmp
     bad.write_text("[smax]\nresolution = 32\n")
     r = foliage("smax", EXAMPLE, "-o", tmp_path / "b.usda", "--config", bad)
     assert r.returncode == 2 and "unknown key 'resolution'" in r.stderr and "leaf-optics" in r.stderr
+    # a value one command takes and another refuses (lb's first order `field` is not spp's): the error names the
+    # file, the key and where to put it, before any work
+    shared = tmp_path / "shared.toml"
+    shared.write_text('first-order = "field"\n')
+    r = foliage("spp", EXAMPLE, "-o", tmp_path / "c.usda", "--config", shared)
+    assert r.returncode == 2, r.stderr
+    assert "shared.toml" in r.stderr and "top-level key 'first-order'" in r.stderr and "[spp]" in r.stderr
+    assert not (tmp_path / "c.usda").exists()
 
 
 def test_bad_leaf_optics_is_a_usage_error(tmp_path):
