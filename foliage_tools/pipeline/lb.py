@@ -437,7 +437,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
             "grid_precision": params.grid_precision,
             **({"base_extent": params.base_extent, "base_nodes_kept": kept} if kept is not None else {}),
             "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": e_scattered.mean(axis=0).tolist(),
-            "e_scattered_lattice_mean": bake.e_scattered.mean(axis=0).tolist(),
+            "e_scattered_volume_mean": bake.e_scattered.mean(axis=0).tolist(),  # before the gather: march + lattice
             "e_direct_volume_mean": bake.e_direct.mean(axis=0).tolist(),
         })
     direct_all = exact.result.e_direct if exact else from_prototypes(world, {b.index: b.e_direct for b in bakes})
