@@ -527,7 +527,7 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
     :gFactor (vertex) and per-leaf primvars:foliage:{spp,sppg,ss}:{direct,scattered}.
     The leaf-area density of an earlier `foliage density` on the same
     --resolution is reused. The paper's printed formulas were re-derived (see
-    lighting/spp.py).
+    lighting/spp/).
 
     \b
     Example:

@@ -2,7 +2,7 @@
 
 ``spp`` / ``sppg``: the default plane-parallel model, the exact slab solution per leaf (``--model exact``), without and
 with the G-factor (G from a 16-voxel grid, once per order of scattering: ``foliage spp``'s defaults); ``spp-paper`` / ``sppg-paper``: the paper's closed form (``--model spp``), which loses about half
-the scattered light of a high sun even where the canopy is exactly plane-parallel (lighting/spp.py). One bake serves
+the scattered light of a high sun even where the canopy is exactly plane-parallel (lighting/spp/). One bake serves
 a model's three rows; each row is timed with its own bake.
 """
 
