@@ -459,7 +459,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "of the plane-parallel single scattering along v that lies inside the real medium (shinya2013 eq. 26). "
                    "paper: G is their plain mean (eq. 27), every direction counting the same whatever light it carries. "
                    "radiance: each F_v is weighted by the plane-parallel single-scattering radiance arriving from v, so G "
-                   "is the share of the point's once-scattered light that is really there (lighting/gfactor.py derives "
+                   "is the share of the point's once-scattered light that is really there (lighting/gfactor/ derives "
                    "it). Measured: it hardly moves G in a uniform layer and lowers it on isolated crowns (tree_small "
                    "0.68 -> 0.59), which helps the exact slab only with bright leaves.")
 @click.option("--g-orders/--no-g-orders", "g_orders", default=None,
@@ -467,7 +467,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                    "shinya2013 eq. 28, the default with --model spp): G is a share of once-scattered light; each later "
                    "order is lost at the rate light re-meets a leaf, so the scattered light is scaled by "
                    "G s / (1 - (1 - s) rho), s = the exact slab's once-scattered share at the leaf and rho = the real "
-                   "medium's recollision probability over the slab's there, instead of by G (lighting/gfactor.py). It "
+                   "medium's recollision probability over the slab's there, instead of by G (lighting/gfactor/). It "
                    "matters for bright leaves (albedo near 1), where s is small (in shinya2013's own test, albedo "
                    "0.95, the exact slab + G on the oak scores 0.065 binned error per order against 0.385 with G once "
                    "on the same grid; README 'The later orders').")
