@@ -57,10 +57,12 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from ..geometry.voxelize import GridSpec
+
 # The own-leaf kernel must cut leaves into exactly the voxel pieces the density
-# grid was built from, so it reuses the clipping of geometry.voxelize (same
-# package, same convention) instead of a second copy of it.
-from ..geometry.voxelize import CLIP_CAP, GridSpec, clip_slab, coord_range, owned_range, projected_area, projection_axes
+# grid was built from, so it cuts them with the area kernel's own loop
+# (geometry.voxelize.clipping, same convention) instead of a second copy of it.
+from ..geometry.voxelize.clipping import CLIP_CAP, make_piece_walker
 from .phase import SPHERICAL_G_FUNCTION
 
 __all__ = [
@@ -191,6 +193,20 @@ def _box_chord(ox, oy, oz, dx, dy, dz, i, j, k):
     return t1 - t0 if t1 > t0 else 0.0
 
 
+@njit(cache=True, inline="always")
+def _add_chords(sink, i, j, l, area):
+    """``add_piece`` of the own-leaf kernel: piece area × chord of ray (p, q) in voxel (i, j, l), for every q.
+
+    ``sink`` is ``(out, p, pts, dirs)``: the kernel's output, the leaf and the rays' origins and directions.
+    """
+    out, p, pts, dirs = sink
+    for q in range(dirs.shape[0]):
+        out[p, q] += area * _box_chord(pts[p, 0], pts[p, 1], pts[p, 2], dirs[q, 0], dirs[q, 1], dirs[q, 2], i, j, l)
+
+
+_walk_own_leaf_pieces = make_piece_walker(_add_chords)
+
+
 @njit(parallel=True, cache=True)
 def _own_leaf_kernel(tris, start, origin, h, nx, ny, nz, pts, dirs, out):
     """out[p, q] = Σ over the voxel pieces of leaf p's triangles: piece area × chord of ray (p, q) in its voxel.
@@ -198,11 +214,10 @@ def _own_leaf_kernel(tris, start, origin, h, nx, ny, nz, pts, dirs, out):
     Index units throughout (voxel size 1): a piece of area a (index units²)
     has density a / 1³ in its voxel, so this is ∫ ρ_own dl in index units,
     the same scale as :func:`_march`. Triangles of leaf p are
-    ``tris[start[p]:start[p+1]]``. The clipping repeats the loop of
-    geometry.voxelize's area kernel so the pieces are the grid's own pieces.
+    ``tris[start[p]:start[p+1]]``. The pieces are cut by the loop of
+    geometry.voxelize's area kernel (``make_piece_walker``), so they are the grid's own pieces.
     """
     n_leaves = start.shape[0] - 1
-    n_dir = dirs.shape[0]
     for p in prange(n_leaves):
         tri = np.empty((CLIP_CAP, 3))
         tmp = np.empty((CLIP_CAP, 3))
@@ -213,32 +228,7 @@ def _own_leaf_kernel(tris, start, origin, h, nx, ny, nz, pts, dirs, out):
             for v in range(3):
                 for d in range(3):
                     tri[v, d] = (tris[it, v, d] - origin[d]) / h
-            xmin, xmax = coord_range(tri, 3, 0)
-            i0, i1 = owned_range(xmin, xmax, nx)
-            if i1 < i0:
-                continue
-            k1, k2, scale = projection_axes(tri)
-            if scale == 0.0:
-                continue
-            for i in range(i0, i1 + 1):
-                mx = clip_slab(tri, 3, px, tmp, 0, i, xmin, xmax)
-                if mx < 3:
-                    continue
-                ymin, ymax = coord_range(px, mx, 1)
-                j0, j1 = owned_range(ymin, ymax, ny)
-                for j in range(j0, j1 + 1):
-                    my = clip_slab(px, mx, py, tmp, 1, j, ymin, ymax)
-                    if my < 3:
-                        continue
-                    zmin, zmax = coord_range(py, my, 2)
-                    l0, l1 = owned_range(zmin, zmax, nz)
-                    for l in range(l0, l1 + 1):
-                        mz = clip_slab(py, my, pz, tmp, 2, l, zmin, zmax)
-                        if mz < 3:
-                            continue
-                        a = projected_area(pz, mz, k1, k2) * scale
-                        for q in range(n_dir):
-                            out[p, q] += a * _box_chord(pts[p, 0], pts[p, 1], pts[p, 2], dirs[q, 0], dirs[q, 1], dirs[q, 2], i, j, l)
+            _walk_own_leaf_pieces(tri, nx, ny, nz, 0, 1, 1.0, tmp, px, py, pz, (out, p, pts, dirs))
 
 
 def _unit_directions(directions, name: str) -> np.ndarray:
