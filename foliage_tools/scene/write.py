@@ -179,9 +179,25 @@ def check_output_path(input_path: Path, out: Path, extra_outputs=(), *, writes_g
                 f"@{out}@: {what} is a file the input @{input_path}@ uses (through its sublayers, references or "
                 "grids); writing it would change the input. Choose another output path (inputs are never modified)."
             )
+    if writes_grids or grids:
+        _refuse_a_siblings_grids(out, grid_name)
     check_writable(out)
     if warnings is not None:
         recover(out.parent, [out.name], warnings)
+
+
+def _refuse_a_siblings_grids(out: Path, grid_name: re.Pattern) -> None:
+    """``OUT.usd`` and ``OUT.usda`` name their grid files alike (``pipeline.density.vdb_path``): writing one beside
+    the other's result would overwrite that result's grids, which its layer then refuses as stale."""
+    if not out.parent.is_dir():
+        return
+    siblings = [out.with_suffix(ext) for ext in USD_EXTENSIONS if ext != out.suffix and out.with_suffix(ext).exists()]
+    taken = sorted(f.name for f in out.parent.iterdir() if grid_name.fullmatch(f.name))
+    if siblings and taken:
+        raise OutputError(
+            f"@{out}@: @{siblings[0]}@ is already beside it, and the grid files of both are named {out.stem}.vdb "
+            f"(there now: {', '.join(taken[:3])}); writing this output would overwrite that result's grids. Choose "
+            f"another output name, or remove @{siblings[0]}@ and its grids first.")
 
 
 def _relative(target: Path, start_dir: Path) -> str:

@@ -177,3 +177,17 @@ def test_interrupt_exits_130_and_leaves_no_output(tmp_path):
     assert proc.returncode == 130, err
     assert "interrupted" in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_output_beside_a_result_of_the_same_name_does_not_take_its_grids(simple_tree, tmp_path):
+    # x.usd and x.usda both name their grids x.vdb: the second bake would overwrite the first result's grids, which
+    # its layer then refuses as stale (a new user's trial). Refused before any work; the first result stays whole.
+    first = tmp_path / "x.usda"
+    assert foliage("density", simple_tree, "-o", first, "--resolution", "8").returncode == 0
+    before = {p.name: sha256(p) for p in tmp_path.iterdir()}
+    r = foliage("density", simple_tree, "-o", tmp_path / "x.usd", "--resolution", "8")
+    assert r.returncode == 2 and "x.usda" in r.stderr and "x.vdb" in r.stderr, r.stderr
+    assert {p.name: sha256(p) for p in tmp_path.iterdir()} == before
+    assert foliage("validate", first).returncode == 0
+    # rewriting the result itself is fine
+    assert foliage("density", simple_tree, "-o", first, "--resolution", "8").returncode == 0
