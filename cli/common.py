@@ -209,6 +209,12 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
     others: set[str] = set()
     for cmd in getattr(root, "commands", {}).values():
         others.update(_long_names(cmd))
+    commands = set(getattr(root, "commands", {}))
+    strays = sorted(k for k, v in data.items() if isinstance(v, dict) and k not in commands)
+    if strays:  # a misspelt [COMMAND] table would be skipped silently
+        raise click.BadParameter(
+            f"@{value}@: [{strays[0]}] is not a foliage command; a table applies to the command it names "
+            f"({', '.join(sorted(commands))}).", ctx=ctx, param_hint="--config")
     own = data.get(ctx.info_name) if ctx.info_name is not None else None
     table = own if isinstance(own, dict) else {}
     entries = [(k, v, False) for k, v in data.items() if not isinstance(v, dict)] + [(k, v, True) for k, v in table.items()]

@@ -122,6 +122,11 @@ def test_config_keys_are_long_option_names_and_one_file_serves_every_command(tmp
     assert r.returncode == 2, r.stderr
     assert "shared.toml" in r.stderr and "top-level key 'first-order'" in r.stderr and "[spp]" in r.stderr
     assert not (tmp_path / "c.usda").exists()
+    # a misspelt table is not skipped silently
+    typo = tmp_path / "typo.toml"
+    typo.write_text("[smaxx]\npath = 'reference'\n")
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "d.usda", "--config", typo)
+    assert r.returncode == 2 and "typo.toml" in r.stderr and "[smaxx] is not a foliage command" in r.stderr, r.stderr
 
 
 def test_bad_leaf_optics_is_a_usage_error(tmp_path):
