@@ -241,6 +241,16 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
                     f"that command's table (e.g. [{ctx.info_name}]).")
                 raise click.BadParameter(f"@{value}@, {where}: {exc.format_message()}{hint}", ctx=ctx,
                                          param_hint="--config") from None
+        if known[name] == "sun" and val is not None:  # parsed by the stage: checked here so the error names the file
+            from foliage_tools.errors import UsageError
+            from foliage_tools.geometry.sun import parse_sun
+
+            if isinstance(val, list) and len(val) == 2 and all(isinstance(v, (int, float)) for v in val):
+                val = f"{val[0]},{val[1]}"  # sun = [45, 60], TOML's natural spelling
+            try:
+                parse_sun(str(val))
+            except UsageError as exc:
+                raise click.BadParameter(f"@{value}@, key {key!r}: {exc}", ctx=ctx, param_hint="--config") from None
         defaults[known[name]] = val
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
     ctx.meta["foliage.config"] = str(value)  # named by errors in the values it set

@@ -127,6 +127,15 @@ def test_config_keys_are_long_option_names_and_one_file_serves_every_command(tmp
     typo.write_text("[smaxx]\npath = 'reference'\n")
     r = foliage("smax", EXAMPLE, "-o", tmp_path / "d.usda", "--config", typo)
     assert r.returncode == 2 and "typo.toml" in r.stderr and "[smaxx] is not a foliage command" in r.stderr, r.stderr
+    # the sun as TOML spells a pair, and a bad sun named by file and key
+    sun = tmp_path / "sun.toml"
+    sun.write_text("json = true\nsun = [30, 50]\n")
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "e.usda", "--config", sun)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["stats"]["sun"]["elevation"] == 50.0
+    sun.write_text('sun = "45;60"\n')
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "f.usda", "--config", sun)
+    assert r.returncode == 2 and "sun.toml" in r.stderr and "key 'sun'" in r.stderr, r.stderr
 
 
 def test_bad_leaf_optics_is_a_usage_error(tmp_path):
