@@ -63,7 +63,7 @@ def smax(scene: Path, out: Path, directions: int, path_: str, scatter: str, dire
 
     \b
     Example:
-      foliage smax examples/tree_small.usda -o out/tree.smax.usda --sun 120,35
+      foliage smax examples/tree_small.usda -o tree.smax.usda --sun 120,35
     """
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.smax import SmaxParams, run_smax
@@ -121,8 +121,8 @@ def reference(scene: Path, out: Path, paths: int, noise: float | None, seed: int
 
     \b
     Examples:
-      foliage reference examples/tree_small.usda -o out/tree.ref.usda --paths 4000000 --seed 1
-      foliage reference examples/tree_small.usda -o out/tree.ref.usda --noise 0.01 --paths 100000000
+      foliage reference examples/tree_small.usda -o tree.ref.usda --paths 4000000 --seed 1
+      foliage reference examples/tree_small.usda -o tree.ref.usda --noise 0.01 --paths 100000000
     """
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.reference import ReferenceParams, run_reference
@@ -196,7 +196,7 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, nois
 
     \b
     Example:
-      foliage bench examples/tree_small.usda --plot out/bench.png --json > out/bench.json
+      foliage bench examples/tree_small.usda --plot bench.png --json > bench.json
     """
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.bench import BenchParams, run_bench
@@ -315,9 +315,9 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
 
     \b
     Example:
-      foliage lb examples/tree_small.usda -o out/tree.lb.usda --resolution 64
-      foliage lb examples/tree_small.usda -o out/tree.lb.usda --bases all   # relightable
-      foliage lb examples/tree_small.usda -o out/tree.lb.usda --gather 0    # the lattice alone, per leaf
+      foliage lb examples/tree_small.usda -o tree.lb.usda --resolution 64
+      foliage lb examples/tree_small.usda -o tree.lb.usda --bases all   # relightable
+      foliage lb examples/tree_small.usda -o tree.lb.usda --gather 0    # the lattice alone, per leaf
     """
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.lb import LBBakeParams, run_lb
@@ -359,7 +359,7 @@ def bake_job_options(fn):
         click.option("--layer-format", type=click.Choice(["auto", "usda", "usdc"]), default="auto", show_default=True,
                      help="File format of the bake's layers: usda (text), usdc (binary, ~4x smaller and faster for large "
                           "bakes) or auto: usdc from 100 000 prototype leaves or 10 000 instances on, else usda."),
-        gather_option("the volume method's (SPP's in the spp stage, LB's in the lb stage)",
+        gather_option("the volume method's (SPPG's in the spp stage, LB's in the lb stage)",
                       "primvars:foliage:sppg:scattered and :lb:scattered"),
         grid_precision_option,
         volume_purpose_option,
@@ -495,8 +495,9 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
               help="With grid depths: voxels along the longest foliage edge of the leaf-area density grid each leaf's "
                    "depths are integrated through (the written grids keep --resolution). auto: per tree, the finest grid "
                    "up to --resolution whose voxels holding a leaf hold 4 leaves on average, so the slab model sees a "
-                   "homogeneous medium rather than single leaves: per-leaf E_scattered error on tree_small / the oak / "
-                   "the sapling 0.35 / 0.41 / 0.43 at 64 voxels, 0.22 / 0.33 / 0.31 with auto (README).")
+                   "homogeneous medium rather than single leaves: with --first-order slab, where the depths also set the "
+                   "first order, per-leaf E_scattered error on tree_small / the oak / the sapling 0.35 / 0.41 / 0.43 at "
+                   "64 voxels, 0.22 / 0.33 / 0.31 with auto (README 'The depth grid').")
 @click.option("--depth", type=click.Choice(["auto", "rays", "grid"]), default="auto", show_default=True,
               help="How each leaf's optical depth toward the sun and the sample directions is measured (shinya2013 eq. 29). "
                    "grid: integrate the leaf-area density grid (own leaf's area taken out), assuming randomly oriented leaves. "
@@ -531,7 +532,7 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
 
     \b
     Example:
-      foliage spp examples/tree_small.usda -o out/tree.spp.usda --directions 16
+      foliage spp examples/tree_small.usda -o tree.spp.usda --directions 16
     """
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.spp import SppParams, run_spp

@@ -161,7 +161,7 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
 
     \b
     Example:
-      foliage density examples/tree_small.usda -o out/tree.density.usda --resolution 64
+      foliage density examples/tree_small.usda -o tree.density.usda --resolution 64
     """
     from foliage_tools.params import DensityParams
     from foliage_tools.pipeline.density import run_density
