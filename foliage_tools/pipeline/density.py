@@ -195,7 +195,8 @@ def require_leaves(scene: Scene, path: Path) -> None:
     if not any(p.leaves.count for p in scene.prototypes):
         meshes = ", ".join(f"<{m.path}>" for p in scene.prototypes for m in p.meshes[:5])
         raise InputError(
-            f"@{path}@: no leaves found (meshes: {meshes}). Mark leaf meshes with FoliageLeafAPI or "
+            f"@{path}@: no leaves found (meshes read: {meshes}; invisible meshes and guide/proxy purposes are left "
+            "out). Mark leaf meshes with FoliageLeafAPI or "
             "primvars:foliage:isLeaf = true, or name them or their material leaf/leaves/foliage/needle."
         )
 

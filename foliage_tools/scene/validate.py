@@ -88,6 +88,16 @@ def _leaf_meshes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
             f"@{path}@: none of its {len(meshes)} meshes is a leaf mesh. Apply FoliageLeafAPI, set "
             "primvars:foliage:isLeaf = true, or name the mesh or its material leaf/leaves/foliage/needle.",
         )
+    else:
+        read = {p.GetPath() for p in _bakeable_prims(stage) if p.IsA(UsdGeom.Mesh)}
+        if not any(classify_leaf(m)[0] for m in meshes if m.GetPath() in read):  # as scene.read sees the stage
+            hidden = ", ".join(f"<{m.GetPath()}>" for m in meshes if classify_leaf(m)[0])
+            yield Finding(
+                ERROR,
+                "leaf-meshes-found",
+                f"@{path}@: its leaf meshes ({hidden}) are all invisible or of guide/proxy purpose, which bakes leave "
+                "out, so no bake finds a leaf. Make them visible with the default (or render) purpose.",
+            )
 
 
 @rule("finite-geometry", "Mesh points are finite and faces index valid points.")

@@ -213,3 +213,16 @@ def test_a_missing_upstream_vdb_is_voxelized_anew_with_the_promised_warning(tmp_
     warned = [w for w in report["warnings"] if "density grid was not reused" in w]  # was warnings: []
     assert len(warned) == 1 and "@./tree.density.vdb@" in warned[0] and "does not exist" in warned[0], report["warnings"]
     assert np.isfinite(report["seconds"])
+
+
+def test_invisible_leaves_are_a_validate_error_as_every_bake_refuses_them(tmp_path):
+    # a leaf mesh that is invisible is left out by the reader (as renderers leave it out), so no bake finds a leaf;
+    # validate said "passed" (a new user's trial)
+    from pxr import UsdGeom
+
+    tree = _edit(_tree(tmp_path / "tree.usda"), lambda stage: UsdGeom.Imageable(stage.GetPrimAtPath("/Tree/Leaves")).MakeInvisible())
+    errors = [f for f in validate(tree) if f.severity == ERROR and f.rule == "leaf-meshes-found"]
+    assert len(errors) == 1 and "</Tree/Leaves>" in errors[0].message and "invisible" in errors[0].message
+    r = foliage("spp", tree, "-o", tmp_path / "o.usda")
+    assert r.returncode == 2 and "invisible meshes" in r.stderr, r.stderr
+    assert foliage("validate", tree).returncode != 0
