@@ -162,7 +162,7 @@ class BenchCommand(click.Command):
         with formatter.section("Methods"):
             formatter.write_dl([(m.name, m.description if m.available else f"not available yet: {m.description}")
                                 for m in found])
-        with formatter.section("Families (a family name selects each of its variants)"):
+        with formatter.section("Families (NAME* selects each of its variants; lb, no method's name, too)"):
             formatter.write_dl([(head, ", ".join(members)) for head, members in families([m.name for m in found]).items()])
         super().format_epilog(ctx, formatter)
 
@@ -170,7 +170,8 @@ class BenchCommand(click.Command):
 @click.command(cls=BenchCommand)
 @SCENE
 @click.option("--methods", "methods_", default=None, metavar="NAME,...",
-              help="Methods to run, by name or family (listed below) [default: every available one].")
+              help="Methods to run, by name (that method alone) or family: NAME* (NAME and its variants), or a family name "
+                   "no method has (lb). Listed below [default: every available one].")
 @click.option("--plot", type=click.Path(path_type=Path, dir_okay=False), default=None, help="Write a log-log speed-vs-error plot (PNG/SVG/PDF).")
 @click.option("--paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
               help="Most reference Monte Carlo sun paths (it stops earlier at --noise).")
@@ -210,7 +211,7 @@ def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, nois
         params = BenchParams(
             optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
             sun=parse_sun(sun) if sun is not None else None,
-            methods=tuple(n.strip() for n in methods_.split(",") if n.strip()) if methods_ else None,
+            methods=tuple(n.strip() for n in methods_.split(",") if n.strip()) if methods_ is not None else None,
             paths=paths, noise=noise, seed=seed, direct_samples=direct_samples,
         )
 

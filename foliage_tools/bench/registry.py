@@ -84,6 +84,17 @@ def in_family(request: str, name: str) -> bool:
     return name == request or name.startswith(request + "-")
 
 
+def selects(request: str, names: list[str]) -> list[str]:
+    """The methods of ``names`` that ``--methods`` entry ``request`` selects: a method's own name selects it alone;
+    ``NAME*`` selects the family (NAME and its variants, ``in_family``); a family name that is no method's name
+    (``lb``) selects the family too. ``smax`` is the method smax, ``smax*`` is smax, smax-leaves and smax-paper."""
+    if request.endswith("*"):
+        return [n for n in names if in_family(request[:-1], n)]
+    if request in names:
+        return [request]
+    return [n for n in names if in_family(request, n)]
+
+
 def families(names: list[str]) -> dict[str, list[str]]:
     """Each family of ``names`` (the part before the first ``-`` of a variant) -> the methods it selects."""
     heads = sorted({n.split("-")[0] for n in names if "-" in n})

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from foliage_tools.bench.metrics import binned_rms, rel_rms
-from foliage_tools.bench.registry import BenchContext, families, in_family, methods
+from foliage_tools.bench.registry import BenchContext, families, methods, selects
 from foliage_tools.errors import UsageError
 from foliage_tools.geometry.rays import RayScene, count_crossings
 from foliage_tools.lighting.optics import LeafOptics
@@ -57,12 +57,16 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
     all_methods = methods()
     names = [m.name for m in all_methods]
 
-    if params.methods:
-        unknown = [n for n in params.methods if not any(in_family(n, name) for name in names)]
+    if params.methods is not None:
+        if not params.methods:
+            raise UsageError("--methods is empty; give method names or families (`foliage bench --help` lists them), "
+                             "or leave the option out to run every method.")
+        unknown = [n for n in params.methods if not selects(n, names)]
         if unknown:
             raise UsageError(f"--methods: unknown method(s) {', '.join(unknown)}; known: {', '.join(names)} "
-                             f"(or a family: {', '.join(families(names))}).")
-    selected = [m for m in all_methods if not params.methods or any(in_family(r, m.name) for r in params.methods)]
+                             f"(or a family, NAME* or a family name no method has: {', '.join(families(names))}).")
+    chosen = {n for r in params.methods or () for n in selects(r, names)}
+    selected = [m for m in all_methods if params.methods is None or m.name in chosen]
 
     t0 = time.perf_counter()
     ref = bake_reference(scene, sun, ReferenceParams(optics=params.optics, paths=params.paths, seed=params.seed,

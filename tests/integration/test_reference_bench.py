@@ -84,14 +84,17 @@ def test_bench_reports_every_method_with_errors_beside_the_reference_noise(tmp_p
     assert bad.returncode == 2 and "nope" in bad.stderr
 
 
-def test_bench_methods_take_a_family_name_for_its_variants():
-    # DESIGN names the method `lb`; the bench runs it at two resolutions, lb-32 and lb-64, and at 64 without
-    # the exact first order of scattering
-    r = foliage("bench", EXAMPLE, "--methods", "lb,smax", "--paths", "2000", "--json")
+def test_bench_methods_take_a_name_alone_or_a_family():
+    # DESIGN names the method `lb`; the bench runs it at two resolutions, lb-32 and lb-64, with and without the
+    # marched first order: `lb`, no method's name, is its family; `smax*` is smax's family, `sppg` the method alone
+    r = foliage("bench", EXAMPLE, "--methods", "lb,smax*,sppg,lb-32", "--paths", "2000", "--json")
     assert r.returncode == 0, r.stderr
-    assert sorted(m["name"] for m in json.loads(r.stdout)["stats"]["methods"]) == ["lb-32", "lb-32-march", "lb-64", "lb-64-lattice1", "lb-64-march", "smax", "smax-leaves", "smax-paper"]
+    assert sorted(m["name"] for m in json.loads(r.stdout)["stats"]["methods"]) == [
+        "lb-32", "lb-32-march", "lb-64", "lb-64-lattice1", "lb-64-march", "smax", "smax-leaves", "smax-paper", "sppg"]
     bad = foliage("bench", EXAMPLE, "--methods", "l", "--paths", "2000")
     assert bad.returncode == 2 and "family" in bad.stderr
+    empty = foliage("bench", EXAMPLE, "--methods", "", "--paths", "2000")
+    assert empty.returncode == 2 and "empty" in empty.stderr
 
 
 def test_reference_rejects_too_few_paths(tmp_path):
