@@ -165,8 +165,10 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     report.warnings += bake_warnings.merge([(name, r.warnings) for name, r in stages.items()])
     report.stats = {
         "result": str(final),
-        "stages": {name: {"seconds": r.seconds, "outputs": r.outputs, "peak_rss_bytes": r.stats.get("peak_rss_bytes")}
-                   for name, r in stages.items()},
+        # each stage's own stats, as its command's --json gives them (LB's sweeps, residual and convergence, the
+        # gathers' rays and noise, ...), so a pipeline step can check a bake's quality from the bake's report
+        "stages": {name: {"seconds": r.seconds, "outputs": r.outputs, "peak_rss_bytes": r.stats.get("peak_rss_bytes"),
+                          "stats": r.stats} for name, r in stages.items()},
         "bench": stages["bench"].stats if "bench" in stages else None,
         "direct": stages["smax"].stats.get("direct"),
     }

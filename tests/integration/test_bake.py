@@ -136,6 +136,10 @@ def test_layer_format_usdc_writes_binary_layers_that_chain_and_validate(tmp_path
     # each stage's peak memory so far: a process peak, so it never falls from one stage to the next
     peaks = [st["peak_rss_bytes"] for st in report.stats["stages"].values()]
     assert peaks[0] > 50e6 and peaks == sorted(peaks)
+    # each stage's own stats ride along, so a pipeline step can check the bake's quality from its report
+    lb_stage = report.stats["stages"]["lb"]["stats"]
+    assert lb_stage["prototypes"][0]["converged"] and lb_stage["prototypes"][0]["residual"] < 1e-5
+    assert report.stats["stages"]["spp"]["stats"]["gather"]["rays_per_leaf"] == 1024
     layer = Sdf.Layer.FindOrOpen(str(final))
     assert list(layer.subLayerPaths)[0].endswith("tree_small.spp.usdc")
     stage = open_stage(final)
