@@ -87,7 +87,7 @@ def smax_table(report) -> Table:
     s = report.stats
     table = console.result_table(
         f"s_max in {report.seconds:.2f} s, sun az {s['sun']['azimuth']:.0f}° el {s['sun']['elevation']:.0f}° ({escape(s['sun']['source'])})",
-        "prototype", ("leaves", "path", "tau", "mean s_max", "mean E_direct (G)", "mean E_scattered (G)"))
+        "prototype", ("leaves", "path", "tau", "mean s_max", "mean E_direct (green)", "mean E_scattered (green)"))
     for p in s["prototypes"]:
         table.add_row(escape(p["path"]), str(p["leaves"]), p["path_used"], f"{p['tau']:.4g}", f"{p['smax_mean']:.4g}",
                       f"{p['e_direct_mean'][1]:.4g}", f"{p['e_scattered_mean'][1]:.4g}")
@@ -336,7 +336,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
 
         def render(report) -> None:
             table = Table(title=f"lattice-Boltzmann ({bases}) in {report.seconds:.2f} s")
-            for col in ("prototype", "grid", "solver", "iterations", "residual", "MLUPS", "mean E_scattered (G)"):
+            for col in ("prototype", "grid", "solver", "iterations", "residual", "MLUPS", "mean E_scattered (green)"):
                 table.add_column(col, justify="left" if col == "prototype" else "right")
             for p in report.stats["prototypes"]:
                 table.add_row(escape(p["path"]), "×".join(map(str, p["resolution"])), p["solver"], str(p["iterations"]),
@@ -550,7 +550,7 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
 
         def render(report) -> None:
             table = Table(title=f"SPP in {report.seconds:.2f} s ({directions} directions, {depth} depths)")
-            for col in ("prototype", "leaves", "cells", "mean G", "mean E_scattered SPP (G)", "SPPG (G)"):
+            for col in ("prototype", "leaves", "cells", "mean G-factor", "mean E_scattered SPP (green)", "SPPG (green, as written)"):
                 table.add_column(col, justify="left" if col == "prototype" else "right")
             for p in report.stats["prototypes"]:
                 e = p["e_scattered_mean"]

@@ -42,8 +42,10 @@ def cli() -> None:
       foliage preview baked/tree.lb.usda -o tree.png --compare direct,lb,spp
       foliage batch trees/ -o baked/                # many assets on Dask, content-hash cached
 
-    Exit codes: 0 ok, 1 validation findings, 2 bad usage or input,
-    3 internal error (crash log written), 130 interrupted.
+    Exit codes: 0 ok; 1 validation findings, or a bake that failed its own
+    accuracy check (written, with its residual or noise); 2 bad usage, bad
+    input or an environment error (disk full, read-only place, out of memory);
+    3 internal error (crash log written); 130 interrupted (nothing half-written).
     """
 
 
@@ -199,9 +201,11 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
               help="LB density storage to plan for, as `foliage lb --storage` (fp16 halves the solver's two fields).")
 @click.option("--depth", type=click.Choice(["auto", "rays", "grid"]), default="auto", show_default=True,
               help="SPP depth path to plan for, as `foliage spp --depth` (rays cost grows with leaves x --rays-per-leaf x directions).")
-@click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True)
+@click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True,
+              help="Rays per leaf of SPP's ray depths to plan for, as `foliage spp --rays-per-leaf`.")
 @click.option("--reference-paths", type=click.IntRange(min=1), default=1_000_000, show_default=True,
-              help="Monte Carlo sun paths to plan for.")
+              help="Monte Carlo sun paths to plan for (`foliage reference --paths`; bake --with-reference and bench "
+                   "trace up to 64M, stopping at 2 % noise).")
 @common_options
 def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, rays_per_leaf: int, reference_paths: int,
          as_json: bool, quiet: bool, verbose: int) -> None:

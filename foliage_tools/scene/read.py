@@ -40,6 +40,8 @@ def open_stage(path: str | os.PathLike) -> Usd.Stage:
         raise InputError(f"@{p}@ is a directory; give a USD file (.usd, .usda, .usdc, .usdz).")
     if not p.is_file():  # a FIFO, socket or device: USD would block reading it, or fail without saying why
         raise InputError(f"@{p}@ is not a regular file (a FIFO, socket or device?); give a USD file (.usd, .usda, .usdc, .usdz).")
+    if p.stat().st_size == 0:
+        raise InputError(f"@{p}@ is empty (0 bytes): an export or copy that did not finish? Export the asset again.")
     if not Sdf.FileFormat.FindByExtension(p.suffix.lstrip(".") or "none"):
         raise InputError(f"@{p}@: not a USD file (extension {p.suffix or 'none'!r}); give a .usd, .usda, .usdc or .usdz file.")
     try:

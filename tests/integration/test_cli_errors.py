@@ -191,3 +191,11 @@ def test_an_output_beside_a_result_of_the_same_name_does_not_take_its_grids(simp
     assert foliage("validate", first).returncode == 0
     # rewriting the result itself is fine
     assert foliage("density", simple_tree, "-o", first, "--resolution", "8").returncode == 0
+
+
+def test_an_empty_usd_file_is_named_empty(tmp_path):
+    empty = tmp_path / "tree.usda"
+    empty.write_bytes(b"")
+    for args in (("inspect", empty), ("validate", empty), ("spp", empty, "-o", tmp_path / "o.usda")):
+        r = foliage(*args)
+        assert r.returncode == 2 and "is empty (0 bytes)" in r.stderr and "tree.usda" in r.stderr, (args, r.stderr)

@@ -80,7 +80,7 @@ def test_smax_table_in_a_pipe_keeps_headings_and_prim_paths_whole(monkeypatch, t
     result = CliRunner().invoke(cli, ["smax", str(EXAMPLE), "-o", str(tmp_path / "t.smax.usda")])
     assert result.exit_code == 0, result.output
     assert "…" not in result.output
-    for text in (path, "mean E_direct (G)", "mean E_scattered (G)", "mean s_max"):
+    for text in (path, "mean E_direct (green)", "mean E_scattered (green)", "mean s_max"):
         assert text in result.output, f"{text!r} is not whole in\n{result.output}"
 
 
