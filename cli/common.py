@@ -199,7 +199,7 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
     import tomllib
 
     try:
-        data = tomllib.loads(Path(value).read_text(encoding="utf-8"))
+        data = tomllib.loads(Path(value).read_text(encoding="utf-8-sig"))  # an editor's byte-order mark is fine
     except FileNotFoundError:
         raise click.BadParameter(f"@{value}@: no such file.", ctx=ctx, param_hint="--config") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
@@ -232,6 +232,10 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
             )
         param = params.get(known[name])
         if param is not None:  # a bad value names the file and the key, not only the flag it stands for
+            whole = isinstance(param.type, click.types.IntParamType)
+            if whole and (isinstance(val, bool) or (isinstance(val, float) and not val.is_integer())):
+                raise click.BadParameter(f"@{value}@, key {key!r}: {val!r} is not a whole number.", ctx=ctx,
+                                         param_hint="--config")
             try:
                 param.type_cast_value(ctx, val)
             except click.BadParameter as exc:

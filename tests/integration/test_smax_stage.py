@@ -136,6 +136,16 @@ def test_config_keys_are_long_option_names_and_one_file_serves_every_command(tmp
     sun.write_text('sun = "45;60"\n')
     r = foliage("smax", EXAMPLE, "-o", tmp_path / "f.usda", "--config", sun)
     assert r.returncode == 2 and "sun.toml" in r.stderr and "key 'sun'" in r.stderr, r.stderr
+    # an editor's byte-order mark is read past; a fraction or a boolean for a whole number is refused, not truncated
+    bom = tmp_path / "bom.toml"
+    bom.write_bytes("\ufeffjson = true\n".encode("utf-8"))
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "g.usda", "--config", bom)
+    assert r.returncode == 0 and json.loads(r.stdout)["error"] is None, r.stderr
+    for text in ("directions = 8.5\n", "directions = true\n"):
+        frac = tmp_path / "frac.toml"
+        frac.write_text(text)
+        r = foliage("smax", EXAMPLE, "-o", tmp_path / "h.usda", "--config", frac)
+        assert r.returncode == 2 and "frac.toml" in r.stderr and "not a whole number" in r.stderr, r.stderr
 
 
 def test_bad_leaf_optics_is_a_usage_error(tmp_path):
