@@ -465,7 +465,7 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
         "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
         "optics": params.optics.as_dict(), "absorption_scale": params.absorption_scale, "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
-        "gather": gathered.stats() if gathered is not None else {"rays_per_leaf": 0},  # 0: off (auto or asked)
+        "gather": {**gathered.stats(), "on": "lb"} if gathered is not None else {"rays_per_leaf": 0},  # 0: off (auto or asked)
         "forest": forest.stats() if forest is not None else None,
     }
     return report.finish()

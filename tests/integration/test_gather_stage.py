@@ -85,7 +85,7 @@ def test_lb_gather_replaces_the_lattice_scattered_light_and_its_vertex_primvar(b
     np.testing.assert_allclose(vertex[indices], gathered[face_of_corner], rtol=1e-6)
     st = reports["lb"].stats
     # the default is --gather auto: 1024 rays per leaf up to 16k traced leaves
-    assert st["gather"]["rays_per_leaf"] == 1024 and st["gather"]["rays"] == 1024 * 1500
+    assert st["gather"]["rays_per_leaf"] == 1024 and st["gather"]["rays"] == 1024 * 1500 and st["gather"]["on"] == "lb"
     assert reports["lb-plain"].stats["gather"] == {"rays_per_leaf": 0} and reports["spp"].stats["gather"]["rays_per_leaf"] == RAYS
     assert st["prototypes"][0]["e_scattered_volume_mean"] != st["prototypes"][0]["e_scattered_mean"]
     assert foliage("validate", d / "lb.usda").returncode == 0
