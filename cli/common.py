@@ -258,6 +258,16 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
         defaults[known[name]] = val
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
     ctx.meta["foliage.config"] = str(value)  # named by errors in the values it set
+    if ctx.info_name == "bake":  # bake runs these stages, but with its own options: say what does not reach them
+        tables = [k for k in ("density", "smax", "spp", "lb", "reference", "preview") if isinstance(data.get(k), dict)]
+        skipped = sorted(k for k, v in data.items() if not isinstance(v, dict) and k.replace("-", "_") not in known)
+        if tables or skipped:
+            what = " and ".join(part for part in (
+                f"its [{'], ['.join(tables)}] table{'s' if len(tables) > 1 else ''}" if tables else "",
+                f"its top-level key{'s' if len(skipped) > 1 else ''} {', '.join(skipped)}" if skipped else "") if part)
+            ctx.meta["foliage.config_warnings"] = [
+                f"@{value}@: {what} did not reach `foliage bake`'s stages: bake takes its own options (the file's "
+                "top level and its [bake] table); the others apply when that command runs on its own."]
     return value
 
 
@@ -390,6 +400,9 @@ def execute(stage: Callable, *, as_json: bool, quiet: bool, render: Callable | N
     """Run ``stage(progress) -> Report`` with a progress bar, then print its JSON, or warnings, ``render(report)`` and outputs."""
     with console.RichProgress(enabled=not (quiet or as_json)) as progress:
         report = stage(progress)
+    ctx = click.get_current_context(silent=True)
+    if ctx is not None:  # what --config could not apply (_load_config)
+        report.warnings = [*ctx.find_root().meta.get("foliage.config_warnings", []), *report.warnings]
     if as_json:
         console.print_json(report.as_json())
     else:

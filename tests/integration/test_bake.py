@@ -1,5 +1,6 @@
 """``foliage bake``: the main job chains the stages, each layer over the previous one."""
 
+import json
 from pathlib import Path
 
 import pytest
@@ -188,3 +189,16 @@ def test_bake_grid_precision_half_stores_the_lb_grids_half_and_keeps_the_density
     assert keys["float"] != keys["half"]
     with pytest.raises(Exception, match="--grid-precision must be one of"):
         BakeParams(optics=parse_leaf_optics(None), grid_precision="double")
+
+
+def test_bake_says_which_config_keys_do_not_reach_its_stages(tmp_path):
+    # a file shared by a pipeline: [lb] and lb's max-sweeps apply to `foliage lb`, not to bake's lb stage, which
+    # takes bake's own options; bake ran without them silently (a new user's trial)
+    cfg = tmp_path / "pipeline.toml"
+    cfg.write_text("resolution = 8\nmax-sweeps = 3\n[lb]\ntolerance = 1e-4\n")
+    r = foliage("bake", EXAMPLE, "-o", tmp_path / "out", "--gather", "0", "--config", cfg, "--json")
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)
+    notes = [w for w in report["warnings"] if "pipeline.toml" in w]
+    assert len(notes) == 1 and "[lb] table" in notes[0] and "max-sweeps" in notes[0], report["warnings"]
+    assert report["stats"]["stages"]["lb"]["stats"]["prototypes"][0]["resolution"][0] <= 10  # the top level's 8 did
