@@ -40,7 +40,6 @@ path; the cells are not leaves, there is no own leaf).
 from __future__ import annotations
 
 import logging
-import os
 import time
 from dataclasses import dataclass, replace
 from typing import Any
@@ -50,7 +49,6 @@ import numpy as np
 
 from foliage_tools import __version__
 from foliage_tools.errors import UsageError
-from foliage_tools.geometry.rays import RayScene
 from foliage_tools.geometry.sun import Sun, to_prototype_space
 from foliage_tools.lighting import depth as depth_mod
 from foliage_tools.lighting import gfactor as gf
@@ -61,6 +59,7 @@ from foliage_tools.params import DEFAULT_RESOLUTION, DensityParams, check_resolu
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, density_grid, vdb_path
 from foliage_tools.pipeline.direct import DirectBake, DirectChoice, bake_direct
 from foliage_tools.pipeline.first_order import march_sppg
+from foliage_tools.pipeline.spp_neighbours import WORKERS, Neighbours, world_points
 from foliage_tools.pipeline.gather import GatherBake, bake_gather, check_gather, resolve_rays
 from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
@@ -74,9 +73,6 @@ from foliage_tools.scene.vdb import Grid
 from foliage_tools.scene.write import LayerEdits, stage_metadata, write_layer
 
 log = logging.getLogger(__name__)
-
-#: Embree threads of the ray path (results are identical for any number).
-_WORKERS = os.cpu_count() or 1
 
 #: The depth paths of ``--depth``.
 DEPTH_PATHS = ("auto", "grid", "rays")
@@ -238,15 +234,6 @@ def _phases(optics: LeafOptics) -> list:
             for r, t in zip(optics.reflectance, optics.transmittance)]
 
 
-def _is_similarity(m: np.ndarray) -> bool:
-    """Rotation times a uniform scale plus a translation (optical depth is invariant under it), to
-    :data:`~foliage_tools.lighting.depth.SIMILARITY_TOLERANCE` (PointInstancer ``quath`` orientations)."""
-    lin = m[:3, :3]
-    gram = lin.T @ lin
-    s2 = float(np.trace(gram) / 3.0)
-    return s2 > 0.0 and bool(np.allclose(gram, s2 * np.eye(3), rtol=0.0, atol=depth_mod.SIMILARITY_TOLERANCE * s2))
-
-
 def depth_resolution(proto: Prototype, params: SppParams) -> int:
     """The resolution of the grid the per-leaf depths are integrated through (``SppParams.depth_resolution``).
 
@@ -277,7 +264,7 @@ def _own_depths(proto: Prototype, dens: DensityResult, sun_local, dirs_local, pa
         try:
             return rd.leaf_ray_depths(
                 tri, ids, sun_direction=sun_local, directions=dirs_local, rays_per_leaf=params.rays_per_leaf,
-                centers=proto.leaves.centers if params.rays_per_leaf == 1 else None, seed=params.seed, workers=_WORKERS,
+                centers=proto.leaves.centers if params.rays_per_leaf == 1 else None, seed=params.seed, workers=WORKERS,
             )
         except ValueError as exc:  # a leaf without area cannot host ray origins
             raise UsageError(
@@ -287,66 +274,6 @@ def _own_depths(proto: Prototype, dens: DensityResult, sun_local, dirs_local, pa
         dens.density, dens.grid, sun_direction=sun_local, directions=dirs_local, points=proto.leaves.centers,
         leaf_triangles=tri, leaf_of_triangle=ids,
     )
-
-
-def _world_points(points: np.ndarray, m: np.ndarray) -> np.ndarray:
-    return points @ m[:3, :3].T + m[:3, 3]
-
-
-class _Neighbours:
-    """Depths through the other instances of the scene along world rays (shinya2013 eq. (31))."""
-
-    def __init__(self, scene: Scene, densities: dict[int, DensityResult], params: SppParams, warnings: list[str]) -> None:
-        self.scene = scene
-        self.densities = densities
-        self.params = params
-        self.usable = []
-        skipped = []
-        for n, inst in enumerate(scene.instances):
-            if inst.prototype not in densities:
-                continue
-            if not _is_similarity(inst.transform):
-                skipped.append(f"<{inst.path}>")
-                continue
-            self.usable.append(n)
-        if skipped:
-            warnings.append(
-                f"{len(skipped)} instance(s) ({', '.join(skipped[:3])}{', ...' if len(skipped) > 3 else ''}) are not placed by a "
-                "rotation and a uniform scale: their leaves are left out of their neighbours' depths (shinya2013 eq. 31 needs "
-                "optical depth to be invariant under the placement); give them uniform scales."
-            )
-        self._ray_scene = None
-        if params.depth == "rays" and len(self.usable) > 1:
-            tris, owner = [], []
-            for n in self.usable:
-                inst = scene.instances[n]
-                t = scene.prototypes[inst.prototype].triangles(leaves=True)
-                tris.append(t @ inst.transform[:3, :3].T + inst.transform[:3, 3])
-                owner.append(np.full(len(t), n, dtype=np.int64))
-            self._ray_scene = (RayScene(np.concatenate(tris)), np.concatenate(owner))
-
-    def depths(self, n: int, world_centres: np.ndarray, sun_world, dirs_world) -> tuple[depth_mod.DepthSamples | None, int]:
-        """Summed depths of instance n's leaf centres through every other usable instance, and how many there were."""
-        others = [m for m in self.usable if m != n]
-        if not others:
-            return None, 0
-        if self._ray_scene is not None:
-            scene, owner = self._ray_scene
-            # one world scene of every instance's leaves: the rays skip the triangles of their own instance
-            return rd.ray_depth_samples(
-                scene, world_centres, sun_direction=sun_world, directions=dirs_world,
-                skip_ids=np.full(len(world_centres), n), id_of_triangle=owner, workers=_WORKERS,
-            ), len(others)
-        total = None
-        for proto_index in sorted({self.scene.instances[m].prototype for m in others}):
-            mats = [np.linalg.inv(self.scene.instances[m].transform) for m in others if self.scene.instances[m].prototype == proto_index]
-            dens = self.densities[proto_index]
-            part = depth_mod.instance_depth_samples(
-                dens.density, dens.grid, points=world_centres, sun_direction=sun_world, directions=dirs_world,
-                prototype_from_world=np.asarray(mats),
-            )
-            total = part if total is None else total + part
-        return total, len(others)
 
 
 def _mean_irradiance(items: list[gf.LeafIrradiance]) -> gf.LeafIrradiance:
@@ -367,7 +294,7 @@ def _mean_result(results: list[gf.SPPGResult]) -> gf.SPPGResult:
 
 
 def bake_prototype(
-    proto: Prototype, index: int, scene: Scene, sun: Sun, dens: DensityResult, neighbours: _Neighbours | None, params: SppParams,
+    proto: Prototype, index: int, scene: Scene, sun: Sun, dens: DensityResult, neighbours: Neighbours | None, params: SppParams,
     *, depth_density: DensityResult | None = None,
 ) -> SppBake:
     """SPP/SPPG of one prototype: per instance (own depths + neighbours' depths), then the mean over instances.
@@ -398,7 +325,7 @@ def bake_prototype(
             own = own.depths
         extra = None
         if neighbours is not None and instances:
-            extra, count = neighbours.depths(instances[k], _world_points(proto.leaves.centers, m), sun.direction, dirs_world)
+            extra, count = neighbours.depths(instances[k], world_points(proto.leaves.centers, m), sun.direction, dirs_world)
             n_neighbours += count
         g_depths = None
         if coarse is not None:
@@ -485,7 +412,7 @@ def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], pro
                 depth_densities[i] = compute_density(p, DensityParams(resolution=r, method="area"))
     neighbours = None
     if 1 < len(scene.instances) <= EQ31_MAX_INSTANCES:
-        neighbours = _Neighbours(scene, depth_densities, params, warnings)
+        neighbours = Neighbours(scene, depth_densities, params, warnings)
     elif len(scene.instances) > EQ31_MAX_INSTANCES:
         warnings.append(
             f"{len(scene.instances):,} instances: the neighbour depths of shinya2013 eq. (31) are left out above "

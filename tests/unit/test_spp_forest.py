@@ -14,7 +14,7 @@ import pytest
 
 from foliage_tools.geometry.voxelize import GridSpec
 from foliage_tools.lighting import depth as dp
-from foliage_tools.pipeline.spp import _is_similarity
+from foliage_tools.pipeline.spp_neighbours import is_similarity as _is_similarity
 
 
 def quat_matrix(q) -> np.ndarray:
