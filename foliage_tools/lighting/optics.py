@@ -80,8 +80,8 @@ def parse_leaf_optics(spec: str | None, *, wood_reflectance: float | None = None
     """``PRESET``, ``r,t`` or ``rR,rG,rB,tR,tG,tB`` (the ``--leaf-optics`` flag); ``None`` = the default preset."""
     wood = DEFAULT_WOOD_REFLECTANCE if wood_reflectance is None else wood_reflectance
     spec = DEFAULT_PRESET if spec is None else spec.strip()
-    if spec in PRESETS:
-        r, t = PRESETS[spec]
+    if spec.lower() in PRESETS:  # Bright, GEIST2008: a preset's name in any case
+        r, t = PRESETS[spec.lower()]
         return LeafOptics(r, t, wood)
     try:
         values = [float(v) for v in spec.split(",")]

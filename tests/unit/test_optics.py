@@ -33,3 +33,11 @@ def test_optics_arrays_are_immutable():
     o = LeafOptics(0.1, 0.1)
     with pytest.raises(ValueError):
         o.reflectance[0] = 0.5
+
+
+def test_a_preset_name_in_any_case():
+    # `--leaf-optics Bright` was refused as not a preset (a new user's trial)
+    for spec, name in (("Bright", "bright"), ("GEIST2008", "geist2008")):
+        a, b = parse_leaf_optics(spec), parse_leaf_optics(name)
+        np.testing.assert_array_equal(a.reflectance, b.reflectance)
+        np.testing.assert_array_equal(a.transmittance, b.transmittance)
