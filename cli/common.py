@@ -396,6 +396,17 @@ def leaf_optics_from_flags(leaf_optics: str | None, wood_reflectance: float | No
         raise UsageError(msg) from None
 
 
+def _label_sun(stats, source: str) -> None:
+    """Every ``{"sun": {"source": "--sun"}}`` in a report's stats (a bake's stages too) says the sun came from
+    the config file: the stages see a --sun value either way."""
+    if isinstance(stats, dict):
+        sun = stats.get("sun")
+        if isinstance(sun, dict) and sun.get("source") == "--sun":
+            sun["source"] = source
+        for value in stats.values():
+            _label_sun(value, source)
+
+
 def execute(stage: Callable, *, as_json: bool, quiet: bool, render: Callable | None = None) -> int:
     """Run ``stage(progress) -> Report`` with a progress bar, then print its JSON, or warnings, ``render(report)`` and outputs."""
     with console.RichProgress(enabled=not (quiet or as_json)) as progress:
@@ -403,6 +414,8 @@ def execute(stage: Callable, *, as_json: bool, quiet: bool, render: Callable | N
     ctx = click.get_current_context(silent=True)
     if ctx is not None:  # what --config could not apply (_load_config)
         report.warnings = [*ctx.find_root().meta.get("foliage.config_warnings", []), *report.warnings]
+        if "sun" in ctx.params and ctx.get_parameter_source("sun") == click.core.ParameterSource.DEFAULT_MAP:
+            _label_sun(report.stats, f"--config {ctx.meta.get('foliage.config', '')}".strip())
     if as_json:
         console.print_json(report.as_json())
     else:

@@ -133,6 +133,7 @@ def test_config_keys_are_long_option_names_and_one_file_serves_every_command(tmp
     r = foliage("smax", EXAMPLE, "-o", tmp_path / "e.usda", "--config", sun)
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["stats"]["sun"]["elevation"] == 50.0
+    assert json.loads(r.stdout)["stats"]["sun"]["source"] == f"--config {sun}"  # not "--sun": the file set it
     sun.write_text('sun = "45;60"\n')
     r = foliage("smax", EXAMPLE, "-o", tmp_path / "f.usda", "--config", sun)
     assert r.returncode == 2 and "sun.toml" in r.stderr and "key 'sun'" in r.stderr, r.stderr
