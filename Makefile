@@ -21,7 +21,7 @@ demo: setup
 	$(FOLIAGE) validate $(EXAMPLE)
 	$(FOLIAGE) bake $(EXAMPLE) -o $(DEMO) --with-reference
 	$(FOLIAGE) validate $(DEMO)/tree_small.lb.usda
-	@echo "demo outputs are in $(DEMO)/: tree_small.lb.usda (the whole bake over the example), .vdb grids, bench.json and bench.png"
+	@echo "demo outputs are in $(DEMO)/: tree_small.lb.usda (the whole bake over the example), .vdb grids, bench.json, bench.png and tree_small.ref.usda (the reference over the bake)"
 
 # pyflakes, bugbear and no print() in the package ([tool.ruff] in pyproject.toml); part of `make test`
 lint: setup

@@ -352,7 +352,8 @@ def bake_job_options(fn):
     """The options of one bake (``bake``, and ``batch`` for each of its assets)."""
     for option in reversed((
         click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True, help="Density and LB grid resolution."),
-        click.option("--with-reference", is_flag=True, help="Also trace the Monte Carlo reference and write bench.json / bench.png."),
+        click.option("--with-reference", is_flag=True, help="Also trace the Monte Carlo reference: bench.json / bench.png, and NAME.ref.usda over the bake (its "
+                          "per-leaf reference light, for `foliage preview NAME.ref.usda --compare lb,reference --error-image`)."),
         click.option("--reference-paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
                      help="Most reference sun paths (with --with-reference); it stops earlier at --reference-noise."),
         click.option("--reference-noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,

@@ -246,6 +246,14 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
         with atomic_outputs([json_path]) as temps:
             temps[json_path].write_text(json.dumps(bench.as_json(), indent=2, allow_nan=False) + "\n", encoding="utf-8")
         bench.outputs += [str(json_path), str(write_plot(work / "bench.png", bench.stats, f"{Path(path).name}"))]
+        # the reference as a layer over the bake, so `foliage preview NAME.ref.usda --compare direct,lb,reference
+        # --error-image` can show where the bake is off (the same paths, noise and seed as the bench's reference)
+        from foliage_tools.pipeline.reference import ReferenceParams, run_reference
+
+        stages["reference"] = _stage(
+            "reference", run_reference, lb_out, work / f"{stem}.ref.{ext}",
+            ReferenceParams(optics=params.optics, sun=params.sun, paths=params.reference_paths, noise=params.reference_noise),
+            progress=progress)
     return stages
 
 

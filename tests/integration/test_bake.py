@@ -28,6 +28,15 @@ def test_bake_chains_stages_and_the_last_layer_holds_everything(tmp_path):
     assert (tmp_path / "out" / "tree_small.png").stat().st_size > 1000
     assert (tmp_path / "out" / "bench.json").stat().st_size > 100 and (tmp_path / "out" / "bench.png").exists()
     assert foliage("validate", final).returncode == 0
+    # the reference as a layer over the bake: a preview can compare the bake with it
+    ref = tmp_path / "out" / "tree_small.ref.usda"
+    assert str(ref) in report.outputs and foliage("validate", ref).returncode == 0
+    ref_stage = Usd.Stage.Open(str(ref))
+    ref_leaves = UsdGeom.PrimvarsAPI(ref_stage.GetPrimAtPath("/Tree/Leaves"))
+    assert ref_leaves.GetPrimvar("foliage:ref:scattered").HasAuthoredValue()
+    assert ref_leaves.GetPrimvar("foliage:lb:scattered").HasAuthoredValue()  # over the bake
+    r = foliage("preview", ref, "-o", tmp_path / "cmp.png", "--compare", "lb,reference", "--error-image", "--size", "64x64")
+    assert r.returncode == 0, r.stderr
 
 
 @pytest.mark.slow  # > 15 s; the default suite keeps a faster test of the same path
