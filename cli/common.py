@@ -271,12 +271,17 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
     return value
 
 
-def bake_options(fn: Callable) -> Callable:
-    """Options shared by the bake commands (DESIGN.md section 3)."""
-    fn = click.option(
+def config_option(fn: Callable) -> Callable:
+    """``--config FILE.toml`` (``_load_config``): the bake commands, density, plan and preview."""
+    return click.option(
         "--config", type=click.Path(path_type=Path, dir_okay=False), callback=_load_config, is_eager=True, expose_value=False,
         help="TOML file of option values (keys = long option names; a [COMMAND] table applies to one command). Flags override it.",
     )(fn)
+
+
+def bake_options(fn: Callable) -> Callable:
+    """Options shared by the bake commands (DESIGN.md section 3)."""
+    fn = config_option(fn)
     fn = click.option("--wood-reflectance", type=click.FloatRange(0, 1), default=None, help="Bark reflectance, 0..1 [default: 0.2].")(fn)
     fn = click.option(
         "--leaf-optics", default=None, metavar="PRESET|r,t|rR,rG,rB,tR,tG,tB",
@@ -407,15 +412,22 @@ def _label_sun(stats, source: str) -> None:
             _label_sun(value, source)
 
 
+def config_notes(report) -> None:
+    """What ``--config`` could not apply (``_load_config``) among ``report``'s warnings, and a sun the file set
+    reported as from it."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is None:
+        return
+    report.warnings = [*ctx.find_root().meta.get("foliage.config_warnings", []), *report.warnings]
+    if "sun" in ctx.params and ctx.get_parameter_source("sun") == click.core.ParameterSource.DEFAULT_MAP:
+        _label_sun(report.stats, f"--config {ctx.meta.get('foliage.config', '')}".strip())
+
+
 def execute(stage: Callable, *, as_json: bool, quiet: bool, render: Callable | None = None) -> int:
     """Run ``stage(progress) -> Report`` with a progress bar, then print its JSON, or warnings, ``render(report)`` and outputs."""
     with console.RichProgress(enabled=not (quiet or as_json)) as progress:
         report = stage(progress)
-    ctx = click.get_current_context(silent=True)
-    if ctx is not None:  # what --config could not apply (_load_config)
-        report.warnings = [*ctx.find_root().meta.get("foliage.config_warnings", []), *report.warnings]
-        if "sun" in ctx.params and ctx.get_parameter_source("sun") == click.core.ParameterSource.DEFAULT_MAP:
-            _label_sun(report.stats, f"--config {ctx.meta.get('foliage.config', '')}".strip())
+    config_notes(report)
     if as_json:
         console.print_json(report.as_json())
     else:

@@ -18,7 +18,7 @@ from rich.table import Table
 
 from foliage_tools import __version__
 from foliage_tools.cli import common, console
-from foliage_tools.cli.common import OUT, SCENE, common_options, execute, run, setup_logging, volume_purpose_option
+from foliage_tools.cli.common import OUT, SCENE, common_options, config_option, execute, run, setup_logging, volume_purpose_option
 from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED
 from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE
 
@@ -151,6 +151,7 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
               help="area: exact leaf area per voxel / voxel volume (leaf-area density, 1/unit). "
                    "subgrid: geist2008 sec. 4.2 heuristic, fraction of 27 sub-cells touched (0..1).")
 @volume_purpose_option
+@config_option
 @common_options
 def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | None, method: str, volume_purpose: str,
             as_json: bool, quiet: bool, verbose: int) -> None:
@@ -206,6 +207,7 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
 @click.option("--reference-paths", type=click.IntRange(min=1), default=1_000_000, show_default=True,
               help="Monte Carlo sun paths to plan for (`foliage reference --paths`; bake --with-reference and bench "
                    "trace up to 64M, stopping at 2 % noise).")
+@config_option
 @common_options
 def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, rays_per_leaf: int, reference_paths: int,
          as_json: bool, quiet: bool, verbose: int) -> None:

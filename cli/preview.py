@@ -8,7 +8,7 @@ import click
 from rich.table import Table
 
 from foliage_tools.cli import console
-from foliage_tools.cli.common import SCENE, common_options, run, setup_logging
+from foliage_tools.cli.common import SCENE, common_options, config_notes, config_option, run, setup_logging
 
 METHOD_CHOICES = ["direct", "lb", "spp", "smax", "reference"]
 
@@ -48,6 +48,7 @@ METHOD_CHOICES = ["direct", "lb", "spp", "smax", "reference"]
                    "triangles (quadric edge collapse); instances farther than 8 tree radii from the camera also keep their "
                    "wood at FRACTION² and only FRACTION of their leaves, each enlarged so the leaf area stays the same "
                    "(leaves are dropped whole, never decimated). Default: full detail.")
+@config_option
 @common_options
 def preview(scene: Path, out: Path, method: str, compare: str | None, error_image: bool, sun: str | None, size: str | None,
             camera: str | None, azimuth: float | None, elevation: float | None, distance: float | None, fov: float, ground: bool,
@@ -94,6 +95,7 @@ def preview(scene: Path, out: Path, method: str, compare: str | None, error_imag
         )
         with console.RichProgress(enabled=not (quiet or as_json)) as progress:
             report = run_preview(scene, out, params, progress=progress)
+        config_notes(report)
         if as_json:
             console.print_json(report.as_json())
             return 0

@@ -228,3 +228,18 @@ def test_scattered_light_against_the_reference_and_the_papers_own(smax_out, tmp_
                                                              transmittance=tuple(optics.transmittance)))
     np.testing.assert_allclose(written, again.e_scattered, rtol=2e-4, atol=1e-7)
     assert written[:, 1].mean() / ref.e_scattered[:, 1].mean() < 0.9
+
+
+def test_density_plan_and_preview_read_the_shared_config_too(tmp_path):
+    # they had no --config, so a pipeline's file could not set their resolution, sun or size (a new user's trial)
+    cfg = tmp_path / "pipeline.toml"
+    cfg.write_text('resolution = 16\nsun = "30,40"\nsize = "96x64"\nmax-sweeps = 5\njson = true\n[preview]\nmethod = "direct"\n')
+    r = foliage("density", EXAMPLE, "-o", tmp_path / "d.usda", "--config", cfg)
+    assert r.returncode == 0, r.stderr
+    assert max(json.loads(r.stdout)["stats"]["prototypes"][0]["shape"]) == 16 + 2  # the file's 16, one margin voxel a side
+    r = foliage("plan", EXAMPLE, "--config", cfg)
+    assert r.returncode == 0 and json.loads(r.stdout)["stats"]["resolution"] == 16, r.stderr
+    r = foliage("preview", EXAMPLE, "-o", tmp_path / "p.png", "--config", cfg)
+    assert r.returncode == 0, r.stderr
+    st = json.loads(r.stdout)["stats"]
+    assert st["size"] == [96, 64] and st["sun"]["elevation"] == 40.0 and st["sun"]["source"] == f"--config {cfg}"
