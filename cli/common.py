@@ -232,12 +232,15 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
             )
         param = params.get(known[name])
         if param is not None:  # a bad value names the file and the key, not only the flag it stands for
+            text = isinstance(param.type, click.types.StringParamType) and param.nargs == 1 and not param.multiple
+            if text and isinstance(val, list) and all(isinstance(v, (int, float, str)) for v in val):
+                val = ",".join(str(v) for v in val)  # sun = [45, 60]: TOML's spelling of a comma-separated value
             whole = isinstance(param.type, click.types.IntParamType)
             if whole and (isinstance(val, bool) or (isinstance(val, float) and not val.is_integer())):
                 raise click.BadParameter(f"@{value}@, key {key!r}: {val!r} is not a whole number.", ctx=ctx,
                                          param_hint="--config")
             try:
-                param.type_cast_value(ctx, val)
+                param.process_value(ctx, val)  # its type and its callback, as a flag's value would go through them
             except click.BadParameter as exc:
                 where = f"key {key!r} of its [{ctx.info_name}] table" if in_table else f"top-level key {key!r}"
                 hint = "" if in_table else (
@@ -245,16 +248,6 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
                     f"that command's table (e.g. [{ctx.info_name}]).")
                 raise click.BadParameter(f"@{value}@, {where}: {exc.format_message()}{hint}", ctx=ctx,
                                          param_hint="--config") from None
-        if known[name] == "sun" and val is not None:  # parsed by the stage: checked here so the error names the file
-            from foliage_tools.errors import UsageError
-            from foliage_tools.geometry.sun import parse_sun
-
-            if isinstance(val, list) and len(val) == 2 and all(isinstance(v, (int, float)) for v in val):
-                val = f"{val[0]},{val[1]}"  # sun = [45, 60], TOML's natural spelling
-            try:
-                parse_sun(str(val))
-            except UsageError as exc:
-                raise click.BadParameter(f"@{value}@, key {key!r}: {exc}", ctx=ctx, param_hint="--config") from None
         defaults[known[name]] = val
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
     ctx.meta["foliage.config"] = str(value)  # named by errors in the values it set
@@ -268,6 +261,21 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
             ctx.meta["foliage.config_warnings"] = [
                 f"@{value}@: {what} did not reach `foliage bake`'s stages: bake takes its own options (the file's "
                 "top level and its [bake] table); the others apply when that command runs on its own."]
+    return value
+
+
+def check_sun(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """``--sun AZ,EL`` checked where it is given (a flag or a --config key, which then names the file), kept as
+    text: the stages parse it (``geometry.sun.parse_sun``)."""
+    if value is None:
+        return None
+    from foliage_tools.errors import UsageError
+    from foliage_tools.geometry.sun import parse_sun
+
+    try:
+        parse_sun(value)
+    except UsageError as exc:
+        raise click.BadParameter(str(exc), ctx=ctx, param=param) from None
     return value
 
 
@@ -288,7 +296,7 @@ def bake_options(fn: Callable) -> Callable:
         help="Leaf reflectance and transmittance: a preset (geist2008, bright), one pair for all channels, or RGB each [default: geist2008].",
     )(fn)
     fn = click.option(
-        "--sun", default=None, metavar="AZ,EL",
+        "--sun", default=None, metavar="AZ,EL", callback=check_sun,
         help="Sun azimuth (counter-clockwise about up from +X) and elevation, degrees. Default: the stage's DistantLight, else 45,60.",
     )(fn)
     return fn

@@ -8,7 +8,7 @@ import click
 from rich.table import Table
 
 from foliage_tools.cli import console
-from foliage_tools.cli.common import SCENE, common_options, config_notes, config_option, run, setup_logging
+from foliage_tools.cli.common import SCENE, check_sun, common_options, config_notes, config_option, run, setup_logging
 
 METHOD_CHOICES = ["direct", "lb", "spp", "smax", "reference"]
 
@@ -25,7 +25,7 @@ METHOD_CHOICES = ["direct", "lb", "spp", "smax", "reference"]
               help="Render several methods side by side in one labelled image, e.g. direct,lb,reference.")
 @click.option("--error-image", is_flag=True,
               help="Add a row of false-colour luminance error of each method against reference (needs `foliage reference` data).")
-@click.option("--sun", metavar="AZ,EL", default=None,
+@click.option("--sun", metavar="AZ,EL", default=None, callback=check_sun,
               help="Sun azimuth,elevation in degrees (azimuth counter-clockwise about up from +X). "
                    "Default: the stage's DistantLight, else 45,60.")
 @click.option("--size", metavar="WxH", default=None, help="Image size in pixels [default: 1024x1024].")

@@ -134,6 +134,11 @@ def test_config_keys_are_long_option_names_and_one_file_serves_every_command(tmp
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["stats"]["sun"]["elevation"] == 50.0
     assert json.loads(r.stdout)["stats"]["sun"]["source"] == f"--config {sun}"  # not "--sun": the file set it
+    # any comma-separated option spelt as a TOML array, checked by the option's own parsing
+    sun.write_text("json = true\nleaf-optics = [0.45, 0.40]\n")
+    r = foliage("smax", EXAMPLE, "-o", tmp_path / "e2.usda", "--config", sun)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["stats"]["optics"]["transmittance"] == [0.40, 0.40, 0.40]
     sun.write_text('sun = "45;60"\n')
     r = foliage("smax", EXAMPLE, "-o", tmp_path / "f.usda", "--config", sun)
     assert r.returncode == 2 and "sun.toml" in r.stderr and "key 'sun'" in r.stderr, r.stderr
