@@ -238,22 +238,26 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
         from foliage_tools.pipeline.bench import BenchParams, run_bench
         from foliage_tools.scene.atomic import atomic_outputs
 
+        from foliage_tools.pipeline.reference import ReferenceParams, bake_reference, run_reference
+        from foliage_tools.pipeline.stage import begin_bake as begin
+
         bench_params = BenchParams(optics=params.optics, sun=params.sun, paths=params.reference_paths, noise=params.reference_noise,
                                    paths_flag="--reference-paths", noise_flag="--reference-noise", direct_samples=params.direct.samples)
-        bench = _stage("bench", run_bench, path, bench_params, progress=progress)
+        ref_params = ReferenceParams(optics=params.optics, sun=params.sun, paths=params.reference_paths, noise=params.reference_noise)
+        # one trace for the bench and the reference layer, where both would trace the same copied scene (a forest
+        # the bakes trace as lone trees is traced through its placements for the layer, copied whole for the bench)
+        _, ref_scene, ref_sun = begin("bake", path, None, params.sun, progress)
+        traced = None if traced_alone(ref_scene) else bake_reference(ref_scene, ref_sun, ref_params, progress, flat=True)
+        bench = _stage("bench", run_bench, path, bench_params, progress=progress, traced=traced)
         stages["bench"] = bench
         json_path = work / "bench.json"
         with atomic_outputs([json_path]) as temps:
             temps[json_path].write_text(json.dumps(bench.as_json(), indent=2, allow_nan=False) + "\n", encoding="utf-8")
         bench.outputs += [str(json_path), str(write_plot(work / "bench.png", bench.stats, f"{Path(path).name}"))]
         # the reference as a layer over the bake, so `foliage preview NAME.ref.usda --compare direct,lb,reference
-        # --error-image` can show where the bake is off (the same paths, noise and seed as the bench's reference)
-        from foliage_tools.pipeline.reference import ReferenceParams, run_reference
-
-        stages["reference"] = _stage(
-            "reference", run_reference, lb_out, work / f"{stem}.ref.{ext}",
-            ReferenceParams(optics=params.optics, sun=params.sun, paths=params.reference_paths, noise=params.reference_noise),
-            progress=progress)
+        # --error-image` can show where the bake is off
+        stages["reference"] = _stage("reference", run_reference, lb_out, work / f"{stem}.ref.{ext}", ref_params,
+                                     progress=progress, traced=traced)
     return stages
 
 

@@ -17,7 +17,7 @@ from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import from_prototypes, instance_means
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
-from foliage_tools.pipeline.reference import ReferenceParams, bake_reference, noise_warnings, unlit_warnings, unmeasured
+from foliage_tools.pipeline.reference import ReferenceBake, ReferenceParams, bake_reference, noise_warnings, unlit_warnings, unmeasured
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.pipeline.world import World
@@ -51,7 +51,11 @@ def depth_thickness(world: World, sun_dir: np.ndarray) -> tuple[np.ndarray, np.n
     return counts[:, 0].astype(float), counts.sum(axis=1).astype(float)
 
 
-def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = None) -> Report:
+def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = None,
+              traced: ReferenceBake | None = None) -> Report:
+    """``foliage bench``. ``traced``: the reference of ``params``' paths, noise and seed already traced with every
+    instance copied (``bake_reference(..., flat=True)``; ``foliage bake --with-reference`` traces it once for the
+    bench and the reference layer); its seconds are then the trace's own."""
     progress = progress or Silent()
     report, scene, sun = begin_bake("bench", path, None, params.sun, progress)
     all_methods = methods()
@@ -69,9 +73,9 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
     selected = [m for m in all_methods if params.methods is None or m.name in chosen]
 
     t0 = time.perf_counter()
-    ref = bake_reference(scene, sun, ReferenceParams(optics=params.optics, paths=params.paths, seed=params.seed,
-                                                     noise=params.noise), progress, flat=True)  # every leaf compared
-    ref_seconds = time.perf_counter() - t0
+    ref = traced or bake_reference(scene, sun, ReferenceParams(optics=params.optics, paths=params.paths, seed=params.seed,
+                                                               noise=params.noise), progress, flat=True)  # every leaf compared
+    ref_seconds = ref.result.seconds if traced is not None else time.perf_counter() - t0
     world, res = ref.world, ref.result
     assert world is not None  # flat=True copies every instance
     n = int(world.offsets[-1])

@@ -226,10 +226,13 @@ def bake_reference(scene: Scene, sun: Sun, params: ReferenceParams, progress: Pr
     return ReferenceBake(world, result, pooled)
 
 
-def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: Progress | None = None) -> Report:
+def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: Progress | None = None,
+                  traced: ReferenceBake | None = None) -> Report:
+    """``foliage reference``. ``traced``: this scene's reference with ``params`` already traced (``foliage bake
+    --with-reference`` shares the bench's trace)."""
     progress = progress or Silent()
     report, scene, sun = begin_bake("reference", path, out, params.sun, progress)
-    bake = bake_reference(scene, sun, params, progress)
+    bake = traced or bake_reference(scene, sun, params, progress)
     res = bake.result
     counts = [p.leaves.count for p in scene.prototypes]
     direct = bake.prototype_values(res.e_direct, counts)
