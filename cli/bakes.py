@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from rich.markup import escape
@@ -16,6 +17,10 @@ from foliage_tools.cli.common import (
     grid_precision_option, setup_logging, volume_purpose_option,
 )
 from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE
+
+if TYPE_CHECKING:
+    from foliage_tools.pipeline.report import Report
+    from foliage_tools.pipeline.stats import BakeStats, BenchStats, LBStats, ReferenceStats, SmaxStats, SppStats
 
 
 def _eight_directions(ctx: click.Context, param: click.Parameter, value: int) -> int:
@@ -82,7 +87,7 @@ def smax(scene: Path, out: Path, directions: int, path_: str, scatter: str, dire
     run(body)
 
 
-def smax_table(report) -> Table:
+def smax_table(report: Report[SmaxStats]) -> Table:
     """``foliage smax``'s result: one row per prototype."""
     s = report.stats
     table = console.result_table(
@@ -135,7 +140,7 @@ def reference(scene: Path, out: Path, paths: int, noise: float | None, seed: int
             paths=paths, seed=seed, workers=workers, noise=noise,
         )
 
-        def render(report) -> None:
+        def render(report: Report[ReferenceStats]) -> None:
             s = report.stats
             console.stdout.print(
                 f"{s['paths']:,} sun paths on {s['workers']} worker(s) in {report.seconds:.2f} s; {s['leaves']} leaves; "
@@ -237,7 +242,7 @@ def count(n: int) -> str:
     return f"{n:,}"
 
 
-def bench_table(scene: Path, s: dict) -> Table:
+def bench_table(scene: Path, s: BenchStats) -> Table:
     """``foliage bench``'s result (its report's stats): the reference, the exact direct light, then each method."""
     ref = s["reference"]
     table = console.result_table(
@@ -252,8 +257,8 @@ def bench_table(scene: Path, s: dict) -> Table:
         if not m["available"]:
             table.add_row(escape(m["name"]), "not available", *[""] * 5)
             continue
-        keys = ("rel_rms_scattered", "rel_rms_total", "rel_rms_total_volume", "binned_rms", "binned_rms_total")
-        cells = ["n/a" if m[k] is None else f"{m[k]:.3f}" for k in keys]
+        errors = (m["rel_rms_scattered"], m["rel_rms_total"], m["rel_rms_total_volume"], m["binned_rms"], m["binned_rms_total"])
+        cells = ["n/a" if e is None else f"{e:.3f}" for e in errors]
         table.add_row(escape(m["name"]), f"{m['seconds']:.3f}", *cells)
     return table
 
@@ -334,7 +339,7 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
             first_order=first_order,
         )
 
-        def render(report) -> None:
+        def render(report: Report[LBStats]) -> None:
             table = Table(title=f"lattice-Boltzmann ({bases}) in {report.seconds:.2f} s")
             for col in ("prototype", "grid", "solver", "iterations", "residual", "MLUPS", "mean E_scattered (green)"):
                 table.add_column(col, justify="left" if col == "prototype" else "right")
@@ -421,9 +426,9 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                              volume_purpose=volume_purpose, portable=portable, layer_format=layer_format, gather=gather,
                              grid_precision=grid_precision)
 
-        def render(report) -> None:
-            d = report.stats.get("direct") or {}
-            if d.get("mode") == "rays":  # traced before the stages, once for smax, spp and lb: in none of their seconds
+        def render(report: Report[BakeStats]) -> None:
+            d = report.stats["direct"]
+            if d is not None and d["mode"] == "rays":  # traced before the stages, once for smax, spp and lb: in none of their seconds
                 console.stdout.print(f"{'direct':>8}: {d['seconds']:.2f} s (exact sunlight: {d['samples_per_leaf']:,} "
                                      "shadow rays per leaf, once for smax, spp and lb)", highlight=False, soft_wrap=True)
             for name, st in report.stats["stages"].items():
@@ -549,7 +554,7 @@ def spp(scene: Path, out: Path, resolution: int, directions: int, no_gfactor: bo
             volume_purpose=volume_purpose,
         )
 
-        def render(report) -> None:
+        def render(report: Report[SppStats]) -> None:
             table = Table(title=f"SPP in {report.seconds:.2f} s ({directions} directions, {depth} depths)")
             for col in ("prototype", "leaves", "cells", "mean G-factor", "mean E_scattered SPP (green)", "SPPG (green, as written)"):
                 table.add_column(col, justify="left" if col == "prototype" else "right")

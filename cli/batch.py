@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from rich.markup import escape
@@ -14,6 +15,10 @@ from foliage_tools.cli import console
 from foliage_tools.cli.bakes import bake, bake_job_options, bake_params
 from foliage_tools.cli.common import _long_names, common_options, error_report, run, setup_logging
 from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED, FoliageError, UsageError
+
+if TYPE_CHECKING:
+    from foliage_tools.pipeline.report import Report
+    from foliage_tools.pipeline.stats import BatchStats
 
 #: The bake options an asset of a manifest may set (every option of `foliage bake` but its output and output format).
 _NOT_PER_ASSET = {"outdir", "as_json", "quiet", "verbose"}
@@ -176,7 +181,7 @@ def batch(inputs: tuple[Path, ...], outroot: Path, workers: int | None, schedule
     run(body)
 
 
-def _render(report, dry_run: bool) -> None:
+def _render(report: Report[BatchStats], dry_run: bool) -> None:
     s = report.stats
     if dry_run:
         table = Table(title="batch --dry-run: nothing is baked or written")

@@ -24,6 +24,7 @@ from rich.markup import escape
 from foliage_tools import __version__
 from foliage_tools.cli import console
 from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_FINDINGS, EXIT_INTERNAL, EXIT_INTERRUPTED, FoliageError
+from foliage_tools.pipeline.report import Progress, Report, S
 
 SCENE = click.argument("scene", type=click.Path(path_type=Path, dir_okay=True))
 OUT = click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), help="Output USD layer (.usda/.usdc); grids go beside it as .vdb files.")
@@ -431,7 +432,8 @@ def config_notes(report) -> None:
         _label_sun(report.stats, f"--config {ctx.meta.get('foliage.config', '')}".strip())
 
 
-def execute(stage: Callable, *, as_json: bool, quiet: bool, render: Callable | None = None) -> int:
+def execute(stage: Callable[[Progress], Report[S]], *, as_json: bool, quiet: bool,
+            render: Callable[[Report[S]], object] | None = None) -> int:
     """Run ``stage(progress) -> Report`` with a progress bar, then print its JSON, or warnings, ``render(report)`` and outputs."""
     with console.RichProgress(enabled=not (quiet or as_json)) as progress:
         report = stage(progress)

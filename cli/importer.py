@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from rich.markup import escape
@@ -10,6 +11,10 @@ from rich.table import Table
 
 from foliage_tools.cli import console
 from foliage_tools.cli.common import common_options, execute, run, setup_logging
+
+if TYPE_CHECKING:
+    from foliage_tools.pipeline.report import Report
+    from foliage_tools.pipeline.stats import ImportStats
 
 
 @click.command(name="import")
@@ -59,7 +64,7 @@ def import_model(model: Path, out: Path, up_axis: str, meters_per_unit: float, l
             all_leaves=all_leaves, clean=CleanOptions(merge_distance=merge_distance, simplify=simplify, clean=not no_clean),
         )
 
-        def render(report) -> None:
+        def render(report: Report[ImportStats]) -> None:
             table = Table(title=f"{escape(str(model))} -> {escape(str(out))} (up {report.stats['up_axis']}, "
                                 f"{report.stats['meters_per_unit']:g} m/unit)")
             for col in ("prim", "part", "kind", "faces read", "triangles", "points"):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import signal
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from rich.markup import escape
@@ -21,6 +22,10 @@ from foliage_tools.cli import common, console
 from foliage_tools.cli.common import OUT, SCENE, common_options, config_option, execute, run, setup_logging, volume_purpose_option
 from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED
 from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE
+
+if TYPE_CHECKING:
+    from foliage_tools.pipeline.report import Report
+    from foliage_tools.pipeline.stats import DensityStats, PlanStats
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -177,7 +182,7 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
         params = DensityParams(voxel_size=voxel_size, resolution=resolution if given or voxel_size is None else None,
                                method=method, volume_purpose=volume_purpose)
 
-        def render(report) -> None:
+        def render(report: Report[DensityStats]) -> None:
             table = Table(title=f"density ({method}) in {report.seconds:.2f} s")
             for col in ("prototype", "leaves", "grid", "voxel size", "active voxels", "area rel. error", "seconds"):
                 table.add_column(col, justify="left" if col == "prototype" else "right")
@@ -232,7 +237,7 @@ def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, ray
         params = PlanParams(resolution=resolution, bases=bases, storage=storage, depth=depth, rays_per_leaf=rays_per_leaf,
                             reference_paths=reference_paths)
 
-        def render(report) -> None:
+        def render(report: Report[PlanStats]) -> None:
             s = report.stats
             table = Table(title=f"plan for {scene}: resolution {s['resolution']}, bases {s['bases']}, depth {s['depth']}")
             for col in ("prototype", "inst.", "leaves", "grid", "LB rhs", "sweeps", "LB memory", "smax path"):

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from foliage_tools.errors import OutputError
 from foliage_tools.scene.atomic import atomic_outputs, check_writable
@@ -24,7 +26,7 @@ def check_plot_path(path: Path) -> None:
     check_writable(path)
 
 
-def write_plot(path: Path, stats: dict, title: str) -> Path:
+def write_plot(path: Path, stats: Mapping[str, Any], title: str) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")

@@ -11,7 +11,8 @@ from __future__ import annotations
 import importlib
 import pkgutil
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -41,7 +42,7 @@ class MethodOutput:
 
     e_direct: dict[int, np.ndarray]
     e_scattered: dict[int, np.ndarray]
-    stats: dict = field(default_factory=dict)
+    stats: Mapping[str, Any] = field(default_factory=dict)
     scattered_per_instance_leaf: np.ndarray | None = None
     """(L_world, 3) E_scattered of every leaf of every instance, for a method that traced them all (the
     gathers); None: the prototype's values serve every instance (and the forest lattice scales them)."""

@@ -32,6 +32,7 @@ from foliage_tools.pipeline.direct import DirectChoice
 from foliage_tools.pipeline.gather import check_gather
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.scene.atomic import Commit, recover
+from foliage_tools.pipeline.stats import BakeStats
 
 
 @dataclass(frozen=True)
@@ -98,7 +99,7 @@ def _stage(name: str, fn, *args, **kwargs):
     try:
         report = fn(*args, **kwargs)
         # the process's peak resident memory when the stage ended (kB on Linux): a stage that raised it is its own
-        report.stats["peak_rss_bytes"] = int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+        report.peak_rss_bytes = int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
         return report
     except FoliageError as exc:
         exc.args = (f"bake stage '{name}': {exc}",)
@@ -121,9 +122,9 @@ def planned_outputs(path: Path, params: BakeParams, layer_ext: str = "usda") -> 
     return names
 
 
-def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress | None = None) -> Report:
+def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress | None = None) -> Report[BakeStats]:
     progress = progress or Silent()
-    report = Report(command="bake", inputs=[str(path)])
+    report: Report[BakeStats] = Report(command="bake", inputs=[str(path)])
     outdir = Path(outdir)
     if outdir.exists() and not outdir.is_dir():
         raise OutputError(f"@{outdir}@ exists and is not a directory; give a directory for the bake outputs.")
@@ -167,10 +168,10 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
         "result": str(final),
         # each stage's own stats, as its command's --json gives them (LB's sweeps, residual and convergence, the
         # gathers' rays and noise, ...), so a pipeline step can check a bake's quality from the bake's report
-        "stages": {name: {"seconds": r.seconds, "outputs": r.outputs, "peak_rss_bytes": r.stats.get("peak_rss_bytes"),
+        "stages": {name: {"seconds": r.seconds, "outputs": r.outputs, "peak_rss_bytes": r.peak_rss_bytes,
                           "stats": r.stats} for name, r in stages.items()},
         "bench": stages["bench"].stats if "bench" in stages else None,
-        "direct": stages["smax"].stats.get("direct"),
+        "direct": stages["smax"].stats["direct"],
     }
     return report.finish()
 

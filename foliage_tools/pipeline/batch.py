@@ -29,12 +29,16 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_INTERNAL, FoliageError, OutputError, UsageError
 from foliage_tools.pipeline.bake import BakeParams
 from foliage_tools.pipeline.batch_cache import Key, asset_key, load_record, why_bake, write_record
 from foliage_tools.pipeline.report import Report
+from foliage_tools.pipeline.stats import BatchStats
+
+if TYPE_CHECKING:
+    from distributed import Client, LocalCluster
 
 log = logging.getLogger("foliage.batch")
 
@@ -100,12 +104,12 @@ class _Plan:
     entry: dict = field(default_factory=dict)
 
 
-def run_batch(assets: list[Asset], outroot: Path, params: BatchParams, *, progress: BatchProgress | None = None) -> Report:
+def run_batch(assets: list[Asset], outroot: Path, params: BatchParams, *, progress: BatchProgress | None = None) -> Report[BatchStats]:
     """Bake ``assets`` into ``outroot`` (module docstring). ``stats.assets`` holds each one's batch.json entry."""
     from foliage_tools.scene.atomic import recover
 
     progress = progress or _Silent()
-    report = Report(command="batch", inputs=[str(a.path) for a in assets])
+    report: Report[BatchStats] = Report(command="batch", inputs=[str(a.path) for a in assets])
     outroot = Path(outroot)
     if outroot.exists() and not outroot.is_dir():
         raise OutputError(f"@{outroot}@ exists and is not a directory; give a directory for the batch (OUTROOT).")
@@ -245,8 +249,8 @@ class _client:
 
     def __init__(self, params: BatchParams, tasks: int) -> None:
         self.params, self.tasks = params, tasks
-        self.cluster = None
-        self.client = None
+        self.cluster: LocalCluster | None = None
+        self.client: Client | None = None
 
     def __enter__(self):
         from distributed import Client, LocalCluster

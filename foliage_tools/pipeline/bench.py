@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import cast
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from foliage_tools.pipeline.instances import from_prototypes, instance_means
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
 from foliage_tools.pipeline.reference import ReferenceBake, ReferenceParams, bake_reference, noise_warnings, unlit_warnings, unmeasured
 from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.pipeline.stats import BenchRow, BenchStats, sun_stats
 from foliage_tools.pipeline.stage import begin_bake
 from foliage_tools.pipeline.world import World
 
@@ -52,7 +53,7 @@ def depth_thickness(world: World, sun_dir: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = None,
-              traced: ReferenceBake | None = None) -> Report:
+              traced: ReferenceBake | None = None) -> Report[BenchStats]:
     """``foliage bench``. ``traced``: the reference of ``params``' paths, noise and seed already traced with every
     instance copied (``bake_reference(..., flat=True)``; ``foliage bake --with-reference`` traces it once for the
     bench and the reference layer); its seconds are then the trace's own."""
@@ -94,7 +95,7 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
         ref_instances = instance_means(world, ref_total)
         direct_instances = instance_means(world, exact_direct)
 
-    rows: list[dict[str, Any]] = []
+    rows: list[BenchRow] = []
     progress.step(f"running {sum(m.available for m in selected)} method(s)", total=len(selected))
     for m in selected:
         if not m.available:
@@ -137,8 +138,9 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
             if not np.isfinite(value):  # the reference is all zero there: a relative error is undefined
                 report.warnings.append(f"{m.name}: {key} is undefined (the reference is zero everywhere); reported as null.")
                 errors[key] = None
-        rows.append({"name": m.name, "available": True, "description": m.description, "seconds": seconds,
-                     "seconds_volume": seconds_volume, **errors, "stats": out.stats})
+        # errors' keys are BenchRow's error fields (instance_rel_rms_total only for a forest)
+        rows.append(cast(BenchRow, {"name": m.name, "available": True, "description": m.description, "seconds": seconds,
+                                    "seconds_volume": seconds_volume, **errors, "stats": out.stats}))
         progress.advance()
     why = unmeasured(res, params.optics, params.paths_flag)
     if why:  # its noise reads 0 then: say so, never silently (the methods' errors against zeros are null above)
@@ -160,8 +162,8 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
             f"the E_scattered errors of {', '.join(unresolved)} are less than twice the reference's own noise "
             f"({res.noise_rel:.3f}; an exact method would score about that), so they are not resolved. {fix}"
         )
-    report.stats = {
-        "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
+    stats: BenchStats = {
+        "sun": sun_stats(sun),
         "optics": params.optics.as_dict(),
         "leaves": n,
         "reference": {
@@ -177,4 +179,5 @@ def run_bench(path: Path, params: BenchParams, *, progress: Progress | None = No
                                  "(crossings toward the sun, total crossings) — shinya2013 eq. (30) read with the square outside; "
                                  "binned_rms on E_scattered, binned_rms_total on E_direct + E_scattered (the paper's Table 3)",
     }
+    report.stats = stats
     return report.finish()

@@ -16,11 +16,12 @@ from foliage_tools.geometry.voxelize import GridSpec, area_per_voxel, grid_for_b
 from foliage_tools.params import RESOLUTION_RANGE, DensityParams
 from foliage_tools.pipeline.leafdata import native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.pipeline.stats import DensityPrototypeStats, DensityStats
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.vdb import Grid
 from foliage_tools.pipeline.volumes import bakes_root, class_path, prototype_volume, volume_path
-from foliage_tools.scene.write import LayerEdits, PrimvarEdit, check_output_path, stage_metadata, write_layer
+from foliage_tools.scene.write import LayerEdits, PrimvarEdit, check_output_path
 
 log = logging.getLogger(__name__)
 
@@ -216,11 +217,11 @@ def leaf_id_edits(scene: Scene, warnings: list[str]) -> list[PrimvarEdit]:
     return edits
 
 
-def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progress | None = None) -> Report:
-    from foliage_tools.pipeline.stage import require_consistent_input  # stage imports this module
+def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progress | None = None) -> Report[DensityStats]:
+    from foliage_tools.pipeline.stage import require_consistent_input, write_stage  # stage imports this module
 
     progress = progress or Silent()
-    report = Report(command="density", inputs=[str(path)])
+    report: Report[DensityStats] = Report(command="density", inputs=[str(path)])
     check_output_path(path, out, warnings=report.warnings)
     require_consistent_input(path)
     progress.step(f"reading {path}")
@@ -228,8 +229,8 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
     report.warnings.extend(warnings)
     require_leaves(scene, path)
     edits = LayerEdits(primvars=leaf_id_edits(scene, report.warnings))
-    protos = []
-    baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
+    protos: list[DensityPrototypeStats] = []
+    baked = scene.leafy_prototypes()
     for _, proto in baked:  # every grid's size is checked before any is allocated
         density_grid(proto, params)
     progress.step(f"voxelizing {len(baked)} prototype(s) ({params.method})", total=len(baked))
@@ -278,7 +279,5 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
                 "seconds": res.seconds,
             }
         )
-    progress.step(f"writing {out}")
-    report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
-    report.stats = {"method": params.method, "prototypes": protos}
-    return report.finish()
+    stats: DensityStats = {"method": params.method, "prototypes": protos}
+    return write_stage(report, path, out, edits, stats, progress)

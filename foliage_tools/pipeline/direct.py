@@ -25,6 +25,7 @@ from foliage_tools.errors import UsageError
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.lighting import direct
 from foliage_tools.pipeline.report import Progress
+from foliage_tools.pipeline.stats import DirectStats
 from foliage_tools.pipeline.world import World, bake_world, prototype_means, traced_parts
 from foliage_tools.scene.model import Scene
 
@@ -84,9 +85,9 @@ class DirectBake:
     """A forest traced as its lone trees: each instance's mean E_direct traced through every placed instance
     (:func:`instance_direct`); None otherwise (the per-leaf values cover every instance)."""
 
-    def stats(self) -> dict:
+    def stats(self) -> DirectStats:
         r = self.result
-        out = {
+        out: DirectStats = {
             "mode": "rays", "samples_per_leaf": r.samples_per_leaf, "rays": r.rays, "seconds": r.seconds,
             "noise_rel": r.noise_rel, "leaves": int(r.e_direct.shape[0]),
         }

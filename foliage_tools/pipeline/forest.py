@@ -57,6 +57,7 @@ from foliage_tools.lighting import stand as placed
 from foliage_tools.lighting.collision import density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.report import Progress, Silent
+from foliage_tools.pipeline.stats import ForestStats
 from foliage_tools.scene.model import Scene
 
 log = logging.getLogger(__name__)
@@ -100,7 +101,7 @@ class ForestLight:
     calibration: np.ndarray | None = None
     """(2C,) the capped grid's bias the factors were divided by (scattered, then direct); None: not capped."""
 
-    def stats(self) -> dict:
+    def stats(self) -> ForestStats:
         return {"grid": list(self.grid.shape), "voxel_size": self.grid.voxel_size, "seconds": self.seconds,
                 "factor_min": self.factors.min(axis=0).tolist(), "factor_max": self.factors.max(axis=0).tolist(),
                 "direct_factor_min": self.direct_factors.min(axis=0).tolist(),

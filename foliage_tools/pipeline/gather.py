@@ -20,6 +20,7 @@ from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.direct import within_budget
 from foliage_tools.pipeline.instances import from_prototypes
 from foliage_tools.pipeline.report import Progress
+from foliage_tools.pipeline.stats import GatherStats
 from foliage_tools.pipeline.world import World, bake_world, prototype_means, traced_parts
 from foliage_tools.scene.model import Scene
 
@@ -70,7 +71,7 @@ class GatherBake:
     per_prototype: list[np.ndarray]
     """Per prototype, (L, 3) gathered E_scattered, the mean over its instances."""
 
-    def stats(self) -> dict:
+    def stats(self) -> GatherStats:
         r = self.result
         return {"rays_per_leaf": self.rays_per_leaf, "rays": r.rays,
                 "seconds": r.seconds, "noise_rel": r.noise_rel,

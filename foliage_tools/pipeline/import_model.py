@@ -17,6 +17,7 @@ import numpy as np
 from foliage_tools.errors import UsageError
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.scene.meshfile import CleanOptions
+from foliage_tools.pipeline.stats import ImportStats
 
 #: The names that mean leaves, as in scene.read (DESIGN.md section 3).
 DEFAULT_LEAF_PATTERN = r"leaf|leaves|foliage|needle"
@@ -46,12 +47,12 @@ class ImportParams:
             raise UsageError(f"--leaves {self.leaf_pattern!r} is not a regular expression ({exc}).") from None
 
 
-def run_import(path: Path, out: Path, params: ImportParams, *, progress: Progress | None = None) -> Report:
+def run_import(path: Path, out: Path, params: ImportParams, *, progress: Progress | None = None) -> Report[ImportStats]:
     from foliage_tools.scene.asset import write_tree_asset
     from foliage_tools.scene.meshfile import read_parts
 
     progress = progress or Silent()
-    report = Report(command="import", inputs=[str(path)])
+    report: Report[ImportStats] = Report(command="import", inputs=[str(path)])
     path, out = Path(path), Path(out)
     if out.resolve() == path.resolve():
         raise UsageError(f"@{out}@ is the input file; choose another output (inputs are never modified).")

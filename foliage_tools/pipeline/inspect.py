@@ -9,6 +9,7 @@ import numpy as np
 from foliage_tools.pipeline.report import Report
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.read import read_scene
+from foliage_tools.pipeline.stats import InspectPrototypeStats, InspectStats
 
 
 def _bounds_world(scene: Scene) -> list[list[float]] | None:
@@ -23,11 +24,11 @@ def _bounds_world(scene: Scene) -> list[list[float]] | None:
     return [c.min(axis=0).tolist(), c.max(axis=0).tolist()]
 
 
-def inspect(path: Path) -> Report:
-    report = Report(command="inspect", inputs=[str(path)])
+def inspect(path: Path) -> Report[InspectStats]:
+    report: Report[InspectStats] = Report(command="inspect", inputs=[str(path)])
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
-    protos = []
+    protos: list[InspectPrototypeStats] = []
     for i, p in enumerate(scene.prototypes):
         leaf_tris = sum(len(m.triangles) for m in p.meshes if m.is_leaf)
         wood_tris = sum(len(m.triangles) for m in p.meshes if not m.is_leaf)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -56,12 +57,13 @@ from foliage_tools.pipeline.gather import bake_gather, check_gather, resolve_ray
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
 from foliage_tools.pipeline.world import bake_world
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
-from foliage_tools.pipeline.report import Progress, Report, Silent
+from foliage_tools.pipeline.report import Progress, Report
 from foliage_tools.pipeline.volumes import prototype_volume, volume_path
-from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
+from foliage_tools.pipeline.stats import LBPrototypeStats, LBStats, sun_stats
+from foliage_tools.pipeline.stage import bake_layer, sun_in_prototype
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.vdb import Grid
-from foliage_tools.scene.write import LayerEdits, PrimvarEdit, stage_metadata, write_layer
+from foliage_tools.scene.write import LayerEdits, PrimvarEdit
 
 log = logging.getLogger(__name__)
 
@@ -315,7 +317,7 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
 
 
 def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], progress: Progress) -> list[LBPrototypeBake]:
-    baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
+    baked = scene.leafy_prototypes()
     progress.step(f"lattice-Boltzmann ({params.bases}) for {len(baked)} prototype(s)", total=len(baked))
     out = []
     for i, proto in baked:
@@ -359,11 +361,11 @@ def marches(params: LBBakeParams) -> bool:
     return params.first_order == "march" and params.bases == "sun" and params.sun_source == "first-collision"
 
 
-def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | None = None) -> Report:
-    progress = progress or Silent()
-    report, scene, sun = begin_bake("lb", path, out, params.sun, progress)
+def lb_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out: Path,
+             params: LBBakeParams) -> tuple[LayerEdits, LBStats]:
+    """``foliage lb``'s computation and layer (``pipeline.stage.bake_layer`` reads before and writes after)."""
     edits = LayerEdits()
-    protos = []
+    protos: list[LBPrototypeStats] = []
     bakes = bake_lb(scene, sun, params, report.warnings, progress)
     exact = bake_direct(scene, sun, params.direct, progress) if params.direct.mode == "rays" else None
     if marches(params):  # its source is the exact direct light, whatever --direct writes
@@ -430,16 +432,18 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
                 f"--tolerance {params.tolerance:g}. The layer was written with that residual in its metadata; raise "
                 f"--max-sweeps, loosen --tolerance or try --solver bicgstab."
             )
-        protos.append({
+        proto_stats: LBPrototypeStats = {
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
             "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source, "storage": params.storage,
             "grid_precision": params.grid_precision,
-            **({"base_extent": params.base_extent, "base_nodes_kept": kept} if kept is not None else {}),
             "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": e_scattered.mean(axis=0).tolist(),
             "e_scattered_volume_mean": bake.e_scattered.mean(axis=0).tolist(),  # before the gather: march + lattice
             "e_direct_volume_mean": bake.e_direct.mean(axis=0).tolist(),
-        })
+        }
+        if kept is not None:
+            proto_stats["base_extent"], proto_stats["base_nodes_kept"] = params.base_extent, kept
+        protos.append(proto_stats)
     direct_all = exact.result.e_direct if exact else from_prototypes(world, {b.index: b.e_direct for b in bakes})
     scattered_all = gathered.result.e_scattered if gathered else from_prototypes(world, {b.index: b.e_scattered for b in bakes})
     from foliage_tools.pipeline.forest import forest_light
@@ -455,17 +459,20 @@ def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | 
                                            params.volume_purpose, "lb"))
     edits.primvars += pv
     edits.attributes += at
-    progress.step(f"writing {out}")
-    report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
     first = protos[0]
-    report.stats = {
+    stats: LBStats = {
         "solver": first["solver"], "iterations": first["iterations"], "residual": first["residual"],
         "resolution": first["resolution"], "bases": params.bases, "mlups": first["mlups"], "storage": params.storage,
         "grid_precision": params.grid_precision, "first_order": "march" if marches(params) else "field",
-        "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
+        "sun": sun_stats(sun),
         "optics": params.optics.as_dict(), "absorption_scale": params.absorption_scale, "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
         "gather": {**gathered.stats(), "on": "lb"} if gathered is not None else {"rays_per_leaf": 0},  # 0: off (auto or asked)
         "forest": forest.stats() if forest is not None else None,
     }
-    return report.finish()
+    return edits, stats
+
+
+def run_lb(path: Path, out: Path, params: LBBakeParams, *, progress: Progress | None = None) -> Report[LBStats]:
+    return bake_layer("lb", path, out, params.sun, progress,
+                      partial(lb_layer, out=out, params=params))

@@ -27,6 +27,7 @@ from foliage_tools.pipeline.report import Report
 from foliage_tools.pipeline.spp import DEPTH_PATHS, SPP_MAX_PLACEMENTS, depth_path
 from foliage_tools.pipeline.world import traced_alone, world_triangles
 from foliage_tools.scene.read import read_scene
+from foliage_tools.pipeline.stats import PlanForestStats, PlanPrototypeStats, PlanStats
 
 #: All rates from one `make bench` on 2026-11-24 (session 4; AMD EPYC, 2 cores, numba triad 35 GB/s). The
 #: previous session's host (94 GB/s) ran most of these 1.4-2x faster: estimates, not promises.
@@ -132,13 +133,13 @@ def scatterer_pairs(n: int) -> int:
     return n * (min(NEAR, n) + min(n, max(MIN_FAR, (MAX_PAIRS - n * min(NEAR, n)) // n)))
 
 
-def plan(path: Path, params: PlanParams) -> Report:
-    report = Report(command="plan", inputs=[str(path)])
+def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
+    report: Report[PlanStats] = Report(command="plan", inputs=[str(path)])
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
     leaves_total = sum(scene.prototypes[inst.prototype].leaves.count for inst in scene.instances)
     depth = depth_path(scene, params.depth)  # for the default --direct rays
-    protos = []
+    protos: list[PlanPrototypeStats] = []
     total_s = {"density": 0.0, "smax": 0.0, "spp": 0.0, "lb": 0.0}
     peak = 0.0
     for i, proto in enumerate(scene.prototypes):
@@ -194,7 +195,7 @@ def plan(path: Path, params: PlanParams) -> Report:
         total_s["reference"] = params.reference_paths / REFERENCE_PATHS_PER_S
         reference_bytes = ray_scene_bytes(world_tris)
     peak = max(peak, world_bytes)
-    forest = None
+    forest: PlanForestStats | None = None
     if len(scene.instances) > 1:
         from foliage_tools.pipeline import forest as forest_mod
         from foliage_tools.pipeline.spp import EQ31_MAX_INSTANCES

@@ -41,6 +41,7 @@ from foliage_tools.preview.optics import SurfaceOptics
 from foliage_tools.preview.renderer import MAX_SKY_SAMPLES, SAMPLES, DrawScene, Frame, Ground, Lighting, Renderer
 from foliage_tools.preview.tonemap import Exposure, luminance
 from foliage_tools.scene.model import Scene
+from foliage_tools.pipeline.stats import PreviewStats
 
 METHODS = ("direct", "lb", "spp", "smax", "reference")
 """DESIGN.md section 3: azimuth, elevation (degrees) when the stage has no sun and no ``--sun``."""
@@ -221,13 +222,13 @@ def frame_paths(out: Path, count: int, sequence: bool) -> list[Path]:
 # -- the stage -------------------------------------------------------------------------
 
 
-def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progress | None = None) -> Report:
+def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progress | None = None) -> Report[PreviewStats]:
     """Render ``path`` and write ``out`` (or a numbered sequence beside it). Returns the report."""
     from foliage_tools.scene.image import image_format, image_sequence
     from foliage_tools.scene.read import read_scene
 
     progress = progress or Silent()
-    report = Report(command="preview", inputs=[str(path)])
+    report: Report[PreviewStats] = Report(command="preview", inputs=[str(path)])
     fmt = image_format(out)
     if Path(out).resolve() == Path(path).resolve():
         raise OutputError(f"@{out}@ is the input file; give another output path.")

@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -27,13 +28,14 @@ from foliage_tools.geometry.sun import Sun
 from foliage_tools.lighting import reference
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
-from foliage_tools.pipeline.report import Progress, Report, Silent
-from foliage_tools.pipeline.stage import begin_bake
+from foliage_tools.pipeline.report import Progress, Report
+from foliage_tools.pipeline.stats import ReferenceStats, sun_stats
+from foliage_tools.pipeline.stage import bake_layer
 from foliage_tools.pipeline.instances import bake_instance_edits, instance_edits
 from foliage_tools.pipeline.world import (WORLD_MAX_TRIANGLES, World, assemble, placed_prototypes, pooled_leaf_offsets,
                                           prototype_means, traced_alone, world_triangles)
 from foliage_tools.scene.model import Scene
-from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
+from foliage_tools.scene.write import AttributeEdit, LayerEdits
 
 log = logging.getLogger(__name__)
 
@@ -226,12 +228,9 @@ def bake_reference(scene: Scene, sun: Sun, params: ReferenceParams, progress: Pr
     return ReferenceBake(world, result, pooled)
 
 
-def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: Progress | None = None,
-                  traced: ReferenceBake | None = None) -> Report:
-    """``foliage reference``. ``traced``: this scene's reference with ``params`` already traced (``foliage bake
-    --with-reference`` shares the bench's trace)."""
-    progress = progress or Silent()
-    report, scene, sun = begin_bake("reference", path, out, params.sun, progress)
+def reference_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, path: Path, params: ReferenceParams,
+                    traced: ReferenceBake | None) -> tuple[LayerEdits, ReferenceStats]:
+    """``foliage reference``'s trace and layer (``pipeline.stage.bake_layer`` reads before and writes after)."""
     bake = traced or bake_reference(scene, sun, params, progress)
     res = bake.result
     counts = [p.leaves.count for p in scene.prototypes]
@@ -276,9 +275,7 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
         pv, at = bake_instance_edits(scene, "ref", bake.world, res.e_direct, res.e_scattered)
     edits.primvars += pv
     edits.attributes += at
-    progress.step(f"writing {out}")
-    report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
-    report.stats = {
+    stats: ReferenceStats = {
         "paths": int(res.paths),
         "sky_paths": int(res.sky_paths),
         "seed": params.seed,
@@ -290,7 +287,7 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
         "leaves": sum(counts[i.prototype] for i in scene.instances),
         # each instance's own tallies: only a forest traced through its placements has them
         "noise_rel_instance": float(res.noise_rel_instance) if math.isfinite(res.noise_rel_instance) else None,
-        "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
+        "sun": sun_stats(sun),
         "optics": params.optics.as_dict(),
         "energy": {
             "incident": res.incident.tolist(),
@@ -302,4 +299,12 @@ def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: P
         "e_scattered_mean": res.e_scattered.mean(axis=0).tolist(),
         "seconds_tracing": float(res.seconds),
     }
-    return report.finish()
+    return edits, stats
+
+
+def run_reference(path: Path, out: Path, params: ReferenceParams, *, progress: Progress | None = None,
+                  traced: ReferenceBake | None = None) -> Report[ReferenceStats]:
+    """``foliage reference``. ``traced``: this scene's reference with ``params`` already traced (``foliage bake
+    --with-reference`` shares the bench's trace)."""
+    return bake_layer("reference", path, out, params.sun, progress,
+                      partial(reference_layer, path=path, params=params, traced=traced))

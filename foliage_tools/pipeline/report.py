@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from collections.abc import Mapping
+from typing import Any, Generic, Protocol, TypeVar
 
 from foliage_tools import __version__
 
@@ -29,19 +30,31 @@ class Silent:
         pass
 
 
+S = TypeVar("S", bound=Mapping[str, Any])
+"""A command's stats: one of the ``TypedDict`` s of ``pipeline.stats``."""
+
+
+def _no_stats() -> Any:
+    return {}
+
+
 @dataclass
-class Report:
+class Report(Generic[S]):
+    """What a command did. ``Report[LBStats]`` etc.: the type of ``stats`` says which keys the CLI may read."""
+
     command: str
     inputs: list[str]
     outputs: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
-    stats: dict[str, Any] = field(default_factory=dict)
+    stats: S = field(default_factory=_no_stats)
     findings: list[str] = field(default_factory=list)
     """Failed accuracy checks of the bake: the outputs were written, the exit code is 1 (listed with the warnings in JSON)."""
     started: float = field(default_factory=time.perf_counter)
     seconds: float = 0.0
+    peak_rss_bytes: int | None = None
+    """The process's peak resident memory when the command ended, where a caller measured it (``bake``, per stage)."""
 
-    def finish(self) -> "Report":
+    def finish(self) -> "Report[S]":
         self.seconds = time.perf_counter() - self.started
         return self
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import cast
 
@@ -32,11 +33,12 @@ from foliage_tools.pipeline.world import bake_world, prototype_means
 from foliage_tools.pipeline.direct import DirectBake, DirectChoice, bake_direct
 from foliage_tools.pipeline.first_order import marched_once
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning
-from foliage_tools.pipeline.report import Progress, Report, Silent
-from foliage_tools.pipeline.stage import begin_bake, sun_in_prototype
+from foliage_tools.pipeline.report import Progress, Report
+from foliage_tools.pipeline.stats import SmaxPrototypeStats, SmaxStats, sun_stats
+from foliage_tools.pipeline.stage import bake_layer, sun_in_prototype
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.schemas import ENVELOPE_API
-from foliage_tools.scene.write import AttributeEdit, LayerEdits, stage_metadata, write_layer
+from foliage_tools.scene.write import AttributeEdit, LayerEdits
 
 log = logging.getLogger(__name__)
 
@@ -117,7 +119,7 @@ def bake_smax(scene: Scene, sun: Sun, params: SmaxParams, warnings: list[str], p
     if params.scatter in ("leaves", "march"):
         exact = exact if exact is not None else bake_direct(scene, sun, params.direct, progress)
         lit = lit_fractions(scene, exact)
-    baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
+    baked = scene.leafy_prototypes()
     progress.step(f"s_max for {len(baked)} prototype(s)", total=len(baked))
     out = []
     for i, proto in baked:
@@ -183,11 +185,11 @@ def _marched(scene: Scene, sun: Sun, optics: LeafOptics, bakes: list[SmaxBake], 
     return out
 
 
-def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | None = None) -> Report:
-    progress = progress or Silent()
-    report, scene, sun = begin_bake("smax", path, out, params.sun, progress)
+def smax_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out: Path,
+             params: SmaxParams) -> tuple[LayerEdits, SmaxStats]:
+    """``foliage smax``'s computation and layer (``pipeline.stage.bake_layer`` reads before and writes after)."""
     edits = LayerEdits()
-    protos = []
+    protos: list[SmaxPrototypeStats] = []
     traced = bake_direct(scene, sun, params.direct, progress) if params.needs_rays else None
     bakes = bake_smax(scene, sun, params, report.warnings, progress, exact=traced)
     exact = traced if params.direct.mode == "rays" else None
@@ -243,17 +245,20 @@ def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | 
         from_prototypes(world, {b.index: b.lighting.e_scattered for b in bakes}), forest=forest, exact_direct=exact)
     edits.primvars += pv
     edits.attributes += at
-    progress.step(f"writing {out}")
-    report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
-    report.stats = {
+    stats: SmaxStats = {
         "leaves": int(sum(p["leaves"] for p in protos)),
         "tau": protos[0]["tau"] if len(protos) == 1 else [p["tau"] for p in protos],
         "path": protos[0]["path_used"] if len(protos) == 1 else [p["path_used"] for p in protos],
-        "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
+        "sun": sun_stats(sun),
         "optics": params.optics.as_dict(),
         "version": __version__,
         "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
         "forest": forest.stats() if forest is not None else None,
     }
-    return report.finish()
+    return edits, stats
+
+
+def run_smax(path: Path, out: Path, params: SmaxParams, *, progress: Progress | None = None) -> Report[SmaxStats]:
+    return bake_layer("smax", path, out, params.sun, progress,
+                      partial(smax_layer, out=out, params=params))

@@ -43,6 +43,7 @@ import logging
 import time
 from dataclasses import dataclass, replace
 from typing import Any
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -65,12 +66,13 @@ from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
 from foliage_tools.pipeline.world import World, bake_world
 from foliage_tools.pipeline.leafdata import baked_sun_attribute, leaf_primvar_edits, native_instance_warning, vertex_primvar_edits
-from foliage_tools.pipeline.report import Progress, Report, Silent
-from foliage_tools.pipeline.stage import begin_bake
+from foliage_tools.pipeline.report import Progress, Report
+from foliage_tools.pipeline.stats import SppPrototypeStats, SppStats, sun_stats
+from foliage_tools.pipeline.stage import bake_layer
 from foliage_tools.pipeline.volumes import prototype_volume
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.vdb import Grid
-from foliage_tools.scene.write import LayerEdits, stage_metadata, write_layer
+from foliage_tools.scene.write import LayerEdits
 
 log = logging.getLogger(__name__)
 
@@ -393,7 +395,7 @@ def bake_spp(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], pro
     from foliage_tools.pipeline.plan import available_memory
 
     params = resolve_depth(scene, params)
-    baked = [(i, p) for i, p in enumerate(scene.prototypes) if p.leaves.count]
+    baked = scene.leafy_prototypes()
     need = max((p.leaves.count for _, p in baked), default=0) * params.directions * SPP_BYTES_PER_LEAF_DIRECTION
     free = available_memory()
     if need > free:  # refuse before any work, as lb and density do (issue #18 case 7)
@@ -471,12 +473,12 @@ def spp_light(scene: Scene, sun: Sun, params: SppParams, warnings: list[str], pr
     return SppLight(bakes, exact, world, gathered, rays, best_name)
 
 
-def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | None = None) -> Report:
-    progress = progress or Silent()
-    report, scene, sun = begin_bake("spp", path, out, params.sun, progress)
+def spp_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out: Path,
+             params: SppParams) -> tuple[LayerEdits, SppStats]:
+    """``foliage spp``'s computation and layer (``pipeline.stage.bake_layer`` reads before and writes after)."""
     params = resolve_depth(scene, params)
     edits = LayerEdits()
-    protos: list[dict] = []
+    protos: list[SppPrototypeStats] = []
     light = spp_light(scene, sun, params, report.warnings, progress)
     bakes, exact, world, gathered, rays, best_name = (light.bakes, light.exact, light.world, light.gathered, light.rays,
                                                       light.best_name)
@@ -531,17 +533,20 @@ def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | No
         forest=forest, exact_direct=exact)
     edits.primvars += pv
     edits.attributes += at
-    progress.step(f"writing {out}")
-    report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
-    report.stats = {
+    stats: SppStats = {
         "directions": params.directions, "cells": int(sum(p["cells"] for p in protos)), "refine": params.refine,
         "depth": params.depth, "rays_per_leaf": params.rays_per_leaf if params.depth == "rays" else None,
         "gfactor": params.gfactor, "model": gf.SPPGParams(refine=params.refine, model=params.model).resolved_model,
         "g_weights": params.g_weights, "g_resolution": params.g_resolution, "g_orders": params.g_orders, "first_order": params.first_order,
-        "sun": {"azimuth": sun.azimuth, "elevation": sun.elevation, "source": sun.source},
+        "sun": sun_stats(sun),
         "optics": params.optics.as_dict(), "prototypes": protos,
         "direct": exact.stats() if exact else {"mode": "volume"},
         "gather": {**gathered.stats(), "on": best_name} if gathered is not None else {"rays_per_leaf": 0},  # 0: off
         "forest": forest.stats() if forest is not None else None,
     }
-    return report.finish()
+    return edits, stats
+
+
+def run_spp(path: Path, out: Path, params: SppParams, *, progress: Progress | None = None) -> Report[SppStats]:
+    return bake_layer("spp", path, out, params.sun, progress,
+                      partial(spp_layer, out=out, params=params))

@@ -1,23 +1,54 @@
-"""What every bake stage does first: check the output, read the scene, choose the sun."""
+"""The skeleton every single-layer bake fills in: check the output, read the scene, choose the sun, compute,
+write the layer (and its grids) atomically.
+
+A method is one module: its params, a function ``layer(scene, sun, report, progress) -> (LayerEdits, stats)``
+that computes every leafy prototype (``Scene.leafy_prototypes``) and says what to write, and
+``run_NAME = bake_layer("NAME", ...)``. ``run_lb``, ``run_spp``, ``run_smax`` and ``run_reference`` are built so;
+``run_density`` (no sun) reads the scene itself and ends with :func:`write_stage`.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from foliage_tools.errors import InputError, UsageError
 from foliage_tools.geometry.sun import Sun, choose_sun, to_prototype_space
 from foliage_tools.pipeline.density import require_leaves
-from foliage_tools.pipeline.report import Progress, Report
+from foliage_tools.pipeline.report import Progress, Report, S, Silent
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.read import read_scene
-from foliage_tools.scene.write import check_output_path, input_files
+from foliage_tools.scene.write import LayerEdits, check_output_path, input_files, stage_metadata, write_layer
+
+#: What a method computes from the scene and the sun: the layer's edits and its command's stats.
+#: It appends warnings and failed accuracy checks to the report (``report.warnings``, ``report.findings``).
+LayerBake = Callable[[Scene, Sun, Report[Any], Progress], tuple[LayerEdits, S]]
 
 
-def begin_bake(command: str, path: Path, out: Path | None, sun_flag, progress: Progress) -> tuple[Report, Scene, Sun]:
+def bake_layer(command: str, path: Path, out: Path, sun_flag, progress: Progress | None,
+               layer: LayerBake[S]) -> Report[S]:
+    """``foliage COMMAND SCENE -o OUT``: read and check (:func:`begin_bake`), ``layer``, then :func:`write_stage`."""
+    progress = progress or Silent()
+    report, scene, sun = begin_bake(command, path, out, sun_flag, progress)
+    edits, stats = layer(scene, sun, report, progress)
+    return write_stage(report, path, out, edits, stats, progress)
+
+
+def write_stage(report: Report[Any], path: Path, out: Path, edits: LayerEdits, stats: S, progress: Progress) -> Report[S]:
+    """Write ``edits`` as a layer over ``path`` at ``out`` (all files or none: ``scene.write.write_layer``) and
+    finish the report with the files written and ``stats``."""
+    progress.step(f"writing {out}")
+    report.outputs = [str(p) for p in write_layer(path, out, edits, input_stage_meta=stage_metadata(path))]
+    report.stats = stats
+    return report.finish()
+
+
+def begin_bake(command: str, path: Path, out: Path | None, sun_flag, progress: Progress) -> tuple[Report[Any], Scene, Sun]:
     """A report, the scene (with leaves) and the sun; refuses a bad output, or an input mixing two runs, before any work."""
-    report = Report(command=command, inputs=[str(path)])
+    report: Report[Any] = Report(command=command, inputs=[str(path)])
     if out is not None:
         check_output_path(path, out, writes_grids=command in ("lb", "spp"), warnings=report.warnings)
     require_consistent_input(path)

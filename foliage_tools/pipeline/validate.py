@@ -6,11 +6,12 @@ from pathlib import Path
 
 from foliage_tools.pipeline.report import Report
 from foliage_tools.scene.validate import ERROR, WARNING, validate
+from foliage_tools.pipeline.stats import ValidateStats
 
 
-def run_validate(path: Path, *, strict: bool) -> tuple[Report, bool]:
+def run_validate(path: Path, *, strict: bool) -> tuple[Report[ValidateStats], bool]:
     """Return the report and whether validation failed (errors, or warnings too when ``strict``)."""
-    report = Report(command="validate", inputs=[str(path)])
+    report: Report[ValidateStats] = Report(command="validate", inputs=[str(path)])
     findings = validate(path)
     errors = sum(f.severity == ERROR for f in findings)
     warnings = sum(f.severity == WARNING for f in findings)

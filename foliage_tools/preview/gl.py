@@ -9,6 +9,7 @@ passes that use them are in :mod:`foliage_tools.preview.renderer`.
 from __future__ import annotations
 
 from importlib import resources
+from typing import Any
 
 import numpy as np
 
@@ -72,7 +73,8 @@ def create_context():
     import moderngl
 
     errors = []
-    for kwargs in ({"backend": "egl"}, {}):
+    attempts: tuple[dict[str, Any], ...] = ({"backend": "egl"}, {})
+    for kwargs in attempts:
         try:
             return moderngl.create_standalone_context(require=330, **kwargs)
         except Exception as exc:  # moderngl raises plain Exception for every context failure

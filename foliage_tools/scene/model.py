@@ -149,3 +149,7 @@ class Scene:
 
     def instances_of(self, prototype: int) -> list[Instance]:
         return [inst for inst in self.instances if inst.prototype == prototype]
+
+    def leafy_prototypes(self) -> list[tuple[int, Prototype]]:
+        """The prototypes that have leaves, with their index: what every bake computes, one at a time."""
+        return [(i, p) for i, p in enumerate(self.prototypes) if p.leaves.count]

@@ -211,3 +211,8 @@ def test_bake_says_which_config_keys_do_not_reach_its_stages(tmp_path):
     notes = [w for w in report["warnings"] if "pipeline.toml" in w]
     assert len(notes) == 1 and "[lb] table" in notes[0] and "max-sweeps" in notes[0], report["warnings"]
     assert report["stats"]["stages"]["lb"]["stats"]["prototypes"][0]["resolution"][0] <= 10  # the top level's 8 did
+    from tests.helpers.typed_json import assert_typed_stats
+
+    assert_typed_stats(report)
+    for name, stage in report["stats"]["stages"].items():  # each stage's stats as its own command prints them
+        assert_typed_stats({"command": name, "stats": stage["stats"]})

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import ASSETS, REPO
+from tests.helpers.typed_json import assert_typed_stats
 
 SMALL = ("--resolution", "16", "--direct-samples", "16")
 SOURCES = {
@@ -150,6 +151,8 @@ def batch(*args, timeout=600) -> tuple[subprocess.CompletedProcess, dict]:
     except json.JSONDecodeError:
         raise AssertionError(f"no JSON on stdout (exit {r.returncode}): {r.stdout[-2000:]}\n{r.stderr[-4000:]}") from None
     jsonschema.validate(report, SCHEMA)
+    if "error" not in report:  # an interrupted or refused batch's report has empty stats
+        assert_typed_stats(report)
     return r, report
 
 

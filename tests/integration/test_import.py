@@ -121,6 +121,9 @@ def test_a_gltf_imports_one_mesh_per_gltf_mesh_classified_by_name(tmp_path):
     from tests.helpers.cli import REPORT_SCHEMA
 
     jsonschema.validate(json.loads(r.stdout), REPORT_SCHEMA)
+    from tests.helpers.typed_json import assert_typed_stats
+
+    assert_typed_stats(json.loads(r.stdout))
     parts = {p["name"]: p for p in json.loads(r.stdout)["stats"]["parts"]}
     assert parts["Needles"]["leaf"] and parts["Needles"]["triangles"] == 2 and not parts["Trunk"]["leaf"]
     stage = Usd.Stage.Open(str(tmp_path / "t.usda"))

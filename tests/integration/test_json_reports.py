@@ -1,4 +1,5 @@
-"""Every ``--json`` report matches schemas/json/report.schema.json (the contract other tools parse)."""
+"""Every ``--json`` report matches schemas/json/report.schema.json (the contract other tools parse), and its stats
+have exactly the keys and kinds of values its ``pipeline.stats`` type declares (what mypy checks the CLI against)."""
 
 import json
 
@@ -7,6 +8,7 @@ import pytest
 
 from tests.helpers.cli import REPORT_SCHEMA as SCHEMA
 from tests.helpers.cli import foliage
+from tests.helpers.typed_json import assert_typed_stats
 
 
 @pytest.mark.parametrize("command", ["inspect", "validate", "plan", "density", "smax", "reference", "bench", "lb", "spp"])
@@ -29,6 +31,7 @@ def test_json_report_matches_schema(command, simple_tree, tmp_path):
     report = json.loads(r.stdout)  # stdout holds the JSON object and nothing else
     jsonschema.validate(report, SCHEMA)
     assert report["command"] == command
+    assert_typed_stats(report)
 
 
 def test_schema_rejects_a_report_missing_stats():

@@ -572,6 +572,9 @@ def test_json_report(tmp_path):
     jsonschema = pytest.importorskip("jsonschema")
     jsonschema.validate(rep, json.loads((REPO / "schemas" / "json" / "report.schema.json").read_text()))
     assert rep["command"] == "preview" and rep["outputs"] == [str(tmp_path / "t.png")]
+    from tests.helpers.typed_json import assert_typed_stats
+
+    assert_typed_stats(rep)
     s = rep["stats"]
     assert s["sun"]["source"] == "--sun" and s["sun"]["azimuth"] == 90 and s["sun"]["elevation"] == 45
     np.testing.assert_allclose(s["sun"]["direction"], direction_from_angles(90, 45, "Z"), atol=1e-12)

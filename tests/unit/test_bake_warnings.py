@@ -51,7 +51,9 @@ def test_a_native_instance_is_one_warning_listing_what_no_stage_could_store():
 def test_run_bake_reports_each_warning_once(monkeypatch, tmp_path):
     """run_bake's own wiring, with its stages and commit faked (nothing is baked)."""
     def stages(path, work, params, progress, *, stem, ext="usda"):
-        return {name: Report(command=name, inputs=[str(path)], warnings=list(w)) for name, w in _stages()}
+        # the one stat run_bake reads of a stage: smax's direct light (the bake's own, in its summary)
+        return {name: Report(command=name, inputs=[str(path)], warnings=list(w),
+                             stats={"direct": {"mode": "volume"}} if name == "smax" else {}) for name, w in _stages()}
 
     def commit(path, outdir, commit, *, portable_input=None):
         return {"tree_small.lb.usda": Path(outdir) / "tree_small.lb.usda"}

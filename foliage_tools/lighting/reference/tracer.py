@@ -215,10 +215,10 @@ class _Tracer:
     def first_hits(self, o, d):
         """(hits, hit points, truncated) for rays; ``hits`` is the triangle id (-1 for escapes) or, with
         placements, the (instance, prototype triangle) pair (-1, -1 for escapes)."""
-        if self.periodic:
+        if isinstance(self.scene, PeriodicRayScene):  # self.periodic
             h = self.scene.intersect(o, d)
             return h.tri_id, h.points, h.truncated
-        if self.placements is not None:
+        if isinstance(self.scene, InstancedRayScene):  # self.placements
             inst, tri, t = self.scene.intersect(o, d)
             pts = o + np.where(inst >= 0, t, 0.0)[:, None] * d
             return (inst, tri), pts, None
@@ -244,6 +244,7 @@ class _Tracer:
             sel = np.flatnonzero(hit & (pl.prototype_of[i] == p))
             local[sel] = leaf_ids[t[sel]]
         leaf = np.where(local >= 0, pl.leaf_offset[i] + local, -1)
+        assert isinstance(self.scene, InstancedRayScene)  # built from the placements
         normals = self.scene.world_normals(i, t)
         kind = (local >= 0).astype(np.int64)
         return ids, leaf, normals, self.r2[kind], self.t2[kind], self.a2[kind]
