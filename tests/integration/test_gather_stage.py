@@ -12,7 +12,7 @@ from foliage_tools.pipeline.lb import LBBakeParams, run_lb
 from foliage_tools.pipeline.reference import ReferenceParams, run_reference
 from foliage_tools.pipeline.spp import SppParams, run_spp
 from foliage_tools.scene.read import open_stage
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
 RAYS = 256

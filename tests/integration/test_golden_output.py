@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 GOLDEN = Path(__file__).resolve().parents[1] / "golden"
 

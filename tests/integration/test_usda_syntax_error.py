@@ -9,7 +9,7 @@ import pytest
 
 from foliage_tools.errors import EXIT_BAD_INPUT, InputError
 from foliage_tools.scene.read import open_stage
-from tests.integration.test_cli_errors import foliage
+from tests.helpers.cli import foliage
 
 BROKEN = """#usda 1.0
 (
