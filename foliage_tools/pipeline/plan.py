@@ -35,9 +35,11 @@ from foliage_tools.pipeline.stats import PlanForestStats, PlanPrototypeStats, Pl
 #: fused sweep 57 rhs 113-116 MLUPS, 18-base bake of the example at 128^3 122; 3 rhs 92-102 on a uniform grid,
 #: 64-73 for the example tree's sun solve at 64^3 / 128^3).
 LB_MLUPS_MANY, LB_MLUPS_FEW = 120e6, 70e6
-#: LB sweeps to tolerance 1e-5 per node of the longest grid edge (bench_lb_issue.py bake rows:
-#: 68 sweeps at 66 nodes, 132 at 130, physical absorption; lower absorption needs more).
-LB_SWEEPS_PER_EDGE = 1.05
+#: LB sweeps to tolerance 1e-5 with the default solver (auto: ordered sweeps first, lighting.lb.solvers): 7 (4
+#: ordered, 3 plain measuring ones) for tree_small's sun and relightable bakes at 64^3 and 128^3, physical
+#: absorption (lower absorption needs more); an ordered sweep costs about 2 plain ones (64^3, 18 bases x RGB:
+#: 0.25 against 0.12 s), so the 7 cost about 11 plain sweeps.
+LB_SWEEPS, LB_PLAIN_SWEEP_EQUIVALENTS = 7, 11
 #: Seconds per leaf of the area density kernel (bench_density.py: 100k leaves 0.23 s, 1M 2.07 s).
 DENSITY_S_PER_LEAF = 2.2e-6
 #: smax: reference pairs per second (O(N^2), bench_smax.py: 40k leaves 4.1-4.3 s, 100k 25-26 s) and
@@ -149,8 +151,8 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         grid = density_grid(proto, DensityParams(resolution=params.resolution))
         nodes = int(np.prod(grid.shape))
         rhs = 3 * (18 if params.bases == "all" else 1)
-        sweeps = LB_SWEEPS_PER_EDGE * max(grid.shape)
-        lb_s = sweeps * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW) + nodes * LB_S_PER_NODE
+        sweeps = LB_SWEEPS
+        lb_s = LB_PLAIN_SWEEP_EQUIVALENTS * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW) + nodes * LB_S_PER_NODE
         if params.bases == "sun":
             lb_s += nodes * LB_EXACT_FIRST_ORDER_S_PER_NODE
         # the sun bake's first-collision beam arrays and single-scattering correction (pipeline.lb.bake_prototype)

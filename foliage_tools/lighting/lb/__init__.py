@@ -168,9 +168,15 @@ runs BiCGSTAB on ``I - T`` for all right-hand sides in lock-step, each with
 its own scalars but one kernel call per matrix-vector product for the whole
 batch (scipy's ``bicgstab`` takes one vector at a time, which would run the
 kernel without its batch); the products ``(I - T) v`` and the dot products
-that follow them are fused into the sweep. ``"auto"`` iterates, estimates the
-per-sweep contraction rate q from the residual history once the light has
-had time to cross the grid, and switches to BiCGSTAB (warm-started from the
+that follow them are fused into the sweep. ``solver="ordered"`` sweeps in
+place, visiting the nodes in lexicographic order and its reverse in turn
+(Gauss-Seidel; ``kernels_ordered``): a value pushed forward is read again in
+the same sweep, so half the directions cross the whole grid per sweep and the
+residual falls per order of scattering, not per node crossed, and each
+ordered sweep from the second on is followed by a plain measuring one.
+``"auto"`` (the default) runs ordered sweeps first, up to
+``solvers.AUTO_ORDERED_SWEEPS`` (24); what they leave, it iterates, estimates the
+per-sweep contraction rate q from the residual history, and switches to BiCGSTAB (warm-started from the
 current field) when the predicted remaining sweeps ``log(tol/res)/log(q)``
 exceed ``LBParams.switch_sweeps``; low absorption (q near 1) is where that
 happens. BiCGSTAB holds 6 fields; if they do not fit in
@@ -196,7 +202,8 @@ collision), ``kernels_stream`` (streaming pieces), ``kernels_sweep`` (the fused
 sweeps) and ``kernels_field`` (balance, once-scattered start, vector updates),
 ``layout`` (``_Operator``), ``solvers`` (``solve``, ``memory_bytes``),
 ``unscattered`` (``unscattered_energy``), ``beam`` (``beam_fields``), ``oracle``
-(``_reference_step``) and ``irradiance`` (leaf irradiance, ``relight``).
+(``_reference_step``) and ``irradiance`` (leaf irradiance, ``relight``); ``kernels_ordered`` is the in-place
+ordered sweep.
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ from foliage_tools.lighting.lb.beam import beam_fields
 from foliage_tools.lighting.lb.directions import NQ, power_weights
 from foliage_tools.lighting.lb.kernels_collide import _parity_blocks
 from foliage_tools.lighting.lb.kernels_field import _balance, _dot, _once_scattered
+from foliage_tools.lighting.lb.kernels_ordered import _sweep_ordered
 from foliage_tools.lighting.lb.kernels_sweep import _sweep_blocks, _sweep_rows
 from foliage_tools.lighting.lb.problem import LBProblem
 from foliage_tools.lighting.lb.unscattered import _attenuations, _transmittances
@@ -222,6 +223,10 @@ class _Operator:
             return None
         num, den = self.reduce(p1), self.reduce(p2)
         return np.sqrt(np.where(den > 0, _safe_div(num, den), np.where(num > 0, np.inf, 0.0)))
+
+    def ordered_sweep(self, f: np.ndarray, forward: bool) -> None:
+        """f <- one in-place ordered sweep (``kernels_ordered``), forward or backward through the nodes."""
+        _sweep_ordered(f, self.rho, self.rhod, self.mat, self.AE, self.AO, forward, self.pw, self.cq, self.use_src)
 
     def apply(self, v: np.ndarray, out: np.ndarray, wt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """out <- (I - T) v for a vector with zero inflow slots; returns per-rhs (wt . out, out . out)."""

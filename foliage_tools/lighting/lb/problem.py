@@ -16,7 +16,7 @@ from foliage_tools.lighting.collision import LATTICES, Medium, brown, diagonal_d
 from foliage_tools.lighting.lb.boundaries import Boundary
 from foliage_tools.lighting.storage import STORAGES
 
-SOLVERS = ("auto", "iterate", "bicgstab", "extrapolate")
+SOLVERS = ("auto", "iterate", "bicgstab", "extrapolate", "ordered")
 
 
 class LatticeStabilityError(UsageError, ValueError):
@@ -132,8 +132,10 @@ class LBParams:
     """Upper bound on lattice sweeps (operator applications); the result says whether it converged."""
     solver: str = "auto"
     """``iterate`` (plain sweeps), ``bicgstab`` (batched BiCGSTAB), ``extrapolate`` (plain sweeps with
-    Lyusternik extrapolation, no extra memory) or ``auto`` (iterate; when slow, BiCGSTAB if its 6
-    fields fit in ``memory_limit``, else extrapolation)."""
+    Lyusternik extrapolation, no extra memory), ``auto`` (iterate; when slow, BiCGSTAB if its 6
+    fields fit in ``memory_limit``, else extrapolation) or ``ordered`` (in-place sweeps in alternating
+    lexicographic order, ``kernels_ordered``: converge per order of scattering rather than per node
+    the light crosses; each counts as one sweep, and a plain measuring sweep decides convergence)."""
     switch_sweeps: int = 300
     """``auto``: switch to BiCGSTAB when plain iteration predicts more than this many further sweeps.
 
