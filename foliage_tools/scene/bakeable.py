@@ -114,8 +114,34 @@ def transform_problem(prim: Usd.Prim, world: np.ndarray, path: str) -> Problem |
     )
 
 
+def instancer_index_problem(prim: Usd.Prim, path: str) -> Problem | None:
+    """A PointInstancer whose prototypes relationship names a missing prim, or whose protoIndices name no prototype
+    (USD then computes no instance transforms at all)."""
+    pi = UsdGeom.PointInstancer(prim)
+    targets = pi.GetPrototypesRel().GetTargets()
+    stage = prim.GetStage()
+    missing = [str(t) for t in targets if not stage.GetPrimAtPath(t)]
+    if missing:
+        return Problem("instancers", f"@{path}@: point instancer <{prim.GetPath()}> names a missing prototype <{missing[0]}>"
+                       f"{f' (and {len(missing) - 1} more)' if len(missing) > 1 else ''}. Add the prototype's prim, or "
+                       "take it out of the instancer's prototypes relationship.", str(prim.GetPath()))
+    indices = np.asarray(pi.GetProtoIndicesAttr().Get(Usd.TimeCode.Default()) or [], dtype=np.int64)
+    bad = np.flatnonzero((indices < 0) | (indices >= len(targets)))
+    if bad.size:
+        return Problem("instancers", f"@{path}@: point instancer <{prim.GetPath()}> has {bad.size} protoIndices outside "
+                       f"0..{len(targets) - 1}, the {len(targets)} prototype(s) it names (first: instance {int(bad[0])}, "
+                       f"index {int(indices[bad[0]])}). Fix protoIndices, or add the missing prototypes to its "
+                       "prototypes relationship.", str(prim.GetPath()))
+    return None
+
+
 def instancer_problems(prim: Usd.Prim, world: np.ndarray, path: str) -> Iterator[Problem]:
-    """Instances of a PointInstancer (``world`` = the instancer's world transform) whose transforms collapse or overflow."""
+    """A PointInstancer's bad prototypes or protoIndices (:func:`instancer_index_problem`), else its instances
+    (``world`` = the instancer's world transform) whose transforms collapse or overflow."""
+    index = instancer_index_problem(prim, path)
+    if index is not None:
+        yield index
+        return
     pi = UsdGeom.PointInstancer(prim)
     t = Usd.TimeCode.Default()
     xforms = pi.ComputeInstanceTransformsAtTime(t, t, UsdGeom.PointInstancer.IncludeProtoXform,

@@ -145,11 +145,22 @@ def _transforms(stage: Usd.Stage, path: str) -> Iterator[Finding]:
             problem = bakeable.light_problem(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
         elif prim.IsA(UsdGeom.PointInstancer):
             problem = next(bakeable.instancer_problems(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path), None)
+            if problem is not None and problem.rule != "transforms":  # the instancers rule reports it
+                problem = None
         else:
             continue
         if problem is not None and problem.message not in seen:  # once per culprit, not per mesh under it
             seen.add(problem.message)
             yield Finding(ERROR, problem.rule, problem.message, problem.prim)
+
+
+@rule("instancers", "Every point instancer's prototypes exist and each of its protoIndices names one of them.")
+def _instancers(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in _bakeable_prims(stage):
+        if prim.IsA(UsdGeom.PointInstancer):
+            problem = bakeable.instancer_index_problem(prim, path)
+            if problem is not None:
+                yield Finding(ERROR, problem.rule, problem.message, problem.prim)
 
 
 @rule("leaf-area", "Every leaf mesh has some nonzero-area triangle (a mesh of only degenerate ones holds no leaf).")
