@@ -75,10 +75,11 @@ WORLD_BASE_BYTES, WORLD_BYTES_PER_TRIANGLE = 3.8e8, 760.0
 #: order at its tolerance and directions (benchmarks/bench_forest.py, 100 x 100 stand, 4.0M nodes: ~55 s of the
 #: smax stage's 58.6 s, 2026-12-02).
 FOREST_S_PER_NODE = 1.4e-5
-#: LB per node beside the sweeps: density, the exact beam and first-collision source, sampling (~1.2e-5 s), and the
-#: exact first order of scattering (--single-scatter exact, ~1.1e-5 s): tree_small at 64, 241 560 nodes, 3.6-4.4 s
-#: with the lattice's own first order and 6.7 s with the exact one (2026-12-02).
-LB_S_PER_NODE, LB_EXACT_FIRST_ORDER_S_PER_NODE = 1.2e-5, 1.1e-5
+#: LB per node beside the sweeps, a part per node and a part per node and right-hand side (the never-scattered
+#: pass, the beams, the sun bake's exact first order, sampling): fitted to tree_small at 64^3 (241 560 nodes), one
+#: prototype's bake with auto's ordered sweeps, 0.88 s for the sun (3 rhs) and 5.3 s for --bases all (54),
+#: 2026-12-04, less the sweeps' share; predicts 40 s at 128^3 fp16 --bases all against 44 s measured.
+LB_S_PER_NODE, LB_S_PER_NODE_RHS = 2.4e-6, 2.7e-7
 #: SPP/SPPG per leaf and instance solved (pipeline.spp.SPP_MAX_PLACEMENTS at most), 16 directions, grid depths
 #: (bench_forest.py: 3 prototypes x 32 instances of 5k/10k/20k leaves in 73.9 s, 2026-12-02).
 SPP_S_PER_LEAF_PLACEMENT = 6.3e-5
@@ -152,9 +153,8 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         nodes = int(np.prod(grid.shape))
         rhs = 3 * (18 if params.bases == "all" else 1)
         sweeps = LB_SWEEPS
-        lb_s = LB_PLAIN_SWEEP_EQUIVALENTS * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW) + nodes * LB_S_PER_NODE
-        if params.bases == "sun":
-            lb_s += nodes * LB_EXACT_FIRST_ORDER_S_PER_NODE
+        lb_s = (LB_PLAIN_SWEEP_EQUIVALENTS * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW)
+                + nodes * (LB_S_PER_NODE + rhs * LB_S_PER_NODE_RHS))
         # the sun bake's first-collision beam arrays and single-scattering correction (pipeline.lb.bake_prototype)
         # (as pipeline.lb.bake_prototype: the two fields of plain iteration in the storage format, the rest float32)
         lb_bytes = (memory_bytes(grid.shape, rhs, 2.0, 2 if params.storage == "fp16" else 4)
