@@ -163,6 +163,41 @@ def _instancers(stage: Usd.Stage, path: str) -> Iterator[Finding]:
                 yield Finding(ERROR, problem.rule, problem.message, problem.prim)
 
 
+@rule("nested-instancing", "No instancing inside a point instancer's prototype (warning: the bakes read one level and leave it out).")
+def _nested_instancing(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in _bakeable_prims(stage):
+        if not prim.IsA(UsdGeom.PointInstancer):
+            continue
+        for target in UsdGeom.PointInstancer(prim).GetPrototypesRel().GetTargets():
+            root = stage.GetPrimAtPath(target)
+            if not root:
+                continue  # the instancers rule reports it
+            it = iter(Usd.PrimRange(root))
+            next(it)  # the prototype's root may itself be an instance (read through it)
+            for inner in it:
+                if _is_skipped(inner):
+                    it.PruneChildren()
+                elif inner.IsInstance() or inner.IsA(UsdGeom.PointInstancer):
+                    yield Finding(WARNING, "nested-instancing",
+                                  f"<{inner.GetPath()}> instances geometry inside prototype <{root.GetPath()}> of point "
+                                  f"instancer <{prim.GetPath()}>; the bakes read one level of instancing and leave it "
+                                  "out. Flatten it into the prototype (or into the outer instancer).", str(inner.GetPath()))
+                    it.PruneChildren()
+
+
+@rule("empty-meshes", "Every mesh has points and faces (warning: the bakes skip one without).")
+def _empty_meshes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in _bakeable_prims(stage):
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        pts, counts = mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get()
+        if pts is None or counts is None or len(pts) == 0 or len(counts) == 0:
+            what = "leaf " if classify_leaf(prim)[0] else ""
+            yield Finding(WARNING, "empty-meshes", f"{what}mesh <{prim.GetPath()}> has no points or faces; the bakes skip "
+                          "it. Give it its geometry, or remove it.", str(prim.GetPath()))
+
+
 @rule("leaf-area", "Every leaf mesh has some nonzero-area triangle (a mesh of only degenerate ones holds no leaf).")
 def _leaf_area(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     for prim in _bakeable_prims(stage):
