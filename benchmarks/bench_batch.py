@@ -3,6 +3,10 @@
 Usage::
 
     python benchmarks/bench_batch.py [--trees 20] [--leaves 800] [--resolution 32] [--direct-samples 64] [--keep DIR]
+    python benchmarks/bench_batch.py --forest --trees 4 --leaves 3000 --resolution 96
+
+With ``--forest`` the trees are the prototypes of one asset instead (a PointInstancer placing each twice), so
+the rows show what the per-prototype lattice solves (``pipeline/fanout.py``) give one large asset on 2 workers.
 
 Trees come from ``examples/make_tree.py`` (ellipsoid crowns of 0.1 m cards,
 one seed per tree, 4-6 m tall), written as USD into a temporary directory.
@@ -43,6 +47,27 @@ def make_trees(where: Path, count: int, leaves: int) -> list[Path]:
     return paths
 
 
+def make_forest(where: Path, trees: list[Path]) -> Path:
+    """One asset: a PointInstancer whose prototypes reference ``trees``, each placed twice, 12 m apart."""
+    from pxr import Gf, Usd, UsdGeom
+
+    stage = Usd.Stage.CreateNew(str(where / "forest.usda"))
+    UsdGeom.SetStageUpAxis(stage, "Z")
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
+    pi = UsdGeom.PointInstancer.Define(stage, "/World/Forest")
+    protos = []
+    for k, tree in enumerate(trees):
+        proto = UsdGeom.Xform.Define(stage, f"/World/Forest/Prototypes/T{k:02d}")
+        proto.GetPrim().GetReferences().AddReference(f"./{tree.relative_to(where).as_posix()}")
+        protos.append(proto.GetPath())
+    pi.CreatePrototypesRel().SetTargets(protos)
+    pi.CreateProtoIndicesAttr([k for k in range(len(trees)) for _ in range(2)])
+    pi.CreatePositionsAttr([Gf.Vec3f(12.0 * k, 12.0 * j, 0) for k in range(len(trees)) for j in range(2)])
+    stage.GetRootLayer().Save()
+    return where / "forest.usda"
+
+
 def run_batch(trees: list[Path], outroot: Path, workers: int, args) -> dict:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]))
     cmd = [sys.executable, "-m", "foliage_tools", "batch", *map(str, trees), "-o", str(outroot), "--workers", str(workers),
@@ -66,15 +91,20 @@ def main() -> None:
     ap.add_argument("--resolution", type=int, default=32)
     ap.add_argument("--direct-samples", type=int, default=64)
     ap.add_argument("--keep", type=Path, default=None, help="write trees and outputs here instead of a temporary directory")
+    ap.add_argument("--forest", action="store_true", help="one asset of the trees as prototypes (no cached rerun)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_batch_") as tmp:
         work = args.keep or Path(tmp)
         (work / "trees").mkdir(parents=True, exist_ok=True)
         trees = make_trees(work / "trees", args.trees, args.leaves)
+        if args.forest:
+            trees = [make_forest(work, trees)]
         rows = [("1 worker", run_batch(trees, work / "out1", 1, args)),
-                ("2 workers", run_batch(trees, work / "out2", 2, args)),
-                ("2 workers, rerun (cached)", run_batch(trees, work / "out2", 2, args))]
-    print(f"foliage batch: {args.trees} trees of {args.leaves} leaves, --resolution {args.resolution}, "
+                ("2 workers", run_batch(trees, work / "out2", 2, args))]
+        if not args.forest:
+            rows.append(("2 workers, rerun (cached)", run_batch(trees, work / "out2", 2, args)))
+    what = f"one forest of {args.trees} prototypes" if args.forest else f"{args.trees} trees"
+    print(f"foliage batch: {what} of {args.leaves} leaves, --resolution {args.resolution}, "
           f"--direct-samples {args.direct_samples}, {os.cpu_count()} cores")
     print(f"{'run':<28}{'wall s':>9}{'baked':>7}{'cached':>8}{'median s/asset':>16}{'vs 1 worker':>13}")
     base = rows[0][1]["wall"]
