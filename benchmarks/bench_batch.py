@@ -5,8 +5,9 @@ Usage::
     python benchmarks/bench_batch.py [--trees 20] [--leaves 800] [--resolution 32] [--direct-samples 64] [--keep DIR]
     python benchmarks/bench_batch.py --forest --trees 4 --leaves 3000 --resolution 96
 
-With ``--forest`` the trees are the prototypes of one asset instead (a PointInstancer placing each twice), so
-the rows show what the per-prototype lattice solves (``pipeline/fanout.py``) give one large asset on 2 workers.
+With ``--forest`` the trees are the prototypes of one asset instead (a PointInstancer placing each twice), and
+``--also K`` adds K of them as assets of their own: a batch where one large asset holds one worker while the
+other runs out of work.
 
 Trees come from ``examples/make_tree.py`` (ellipsoid crowns of 0.1 m cards,
 one seed per tree, 4-6 m tall), written as USD into a temporary directory.
@@ -92,18 +93,20 @@ def main() -> None:
     ap.add_argument("--direct-samples", type=int, default=64)
     ap.add_argument("--keep", type=Path, default=None, help="write trees and outputs here instead of a temporary directory")
     ap.add_argument("--forest", action="store_true", help="one asset of the trees as prototypes (no cached rerun)")
+    ap.add_argument("--also", type=int, default=0, help="with --forest: also bake this many of its trees as assets of their own")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench_batch_") as tmp:
         work = args.keep or Path(tmp)
         (work / "trees").mkdir(parents=True, exist_ok=True)
         trees = make_trees(work / "trees", args.trees, args.leaves)
         if args.forest:
-            trees = [make_forest(work, trees)]
+            trees = [make_forest(work, trees), *trees[:args.also]]
         rows = [("1 worker", run_batch(trees, work / "out1", 1, args)),
                 ("2 workers", run_batch(trees, work / "out2", 2, args))]
         if not args.forest:
             rows.append(("2 workers, rerun (cached)", run_batch(trees, work / "out2", 2, args)))
-    what = f"one forest of {args.trees} prototypes" if args.forest else f"{args.trees} trees"
+    what = (f"one forest of {args.trees} prototypes{f' and {args.also} of them alone' if args.also else ''}" if args.forest
+            else f"{args.trees} trees")
     print(f"foliage batch: {what} of {args.leaves} leaves, --resolution {args.resolution}, "
           f"--direct-samples {args.direct_samples}, {os.cpu_count()} cores")
     print(f"{'run':<28}{'wall s':>9}{'baked':>7}{'cached':>8}{'median s/asset':>16}{'vs 1 worker':>13}")

@@ -22,7 +22,6 @@ then it is reported failed). batch.json is rewritten after every asset.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import secrets
@@ -208,8 +207,7 @@ def _entry(p: _Plan, fut, outroot: Path, attempts: int) -> dict:
     if fut.status == "finished":
         result = fut.result()
         entry.update(status=result["status"], seconds=result["seconds"], warnings=result["warnings"],
-                     error=result["error"], worker=result["worker"], outputs=[_relative(o, outroot) for o in result["outputs"]],
-                     prototype_workers=result.get("prototype_workers", []))
+                     error=result["error"], worker=result["worker"], outputs=[_relative(o, outroot) for o in result["outputs"]])
     else:
         exc = fut.exception()
         kind = type(exc).__name__
@@ -288,19 +286,11 @@ def bake_asset(name: str, path: str, outdir: str, params: BakeParams, topic: str
     from foliage_tools.pipeline.bake import run_bake
 
     worker = _announce(topic, name)
-    share_cores()
+    _share_cores()
     started = time.perf_counter()
     result = {"status": "failed", "seconds": 0.0, "outputs": [], "warnings": [], "error": None, "worker": worker}
-    from foliage_tools.pipeline.fanout import on_cluster
-
     try:
-        # on a worker, the asset's lattice solves go to the cluster one per prototype (pipeline.fanout)
-        where: list[str | None] = []
-        with contextlib.ExitStack() as stack:
-            if worker is not None:
-                where = stack.enter_context(on_cluster(f"{name}-prototype"))
-            report = run_bake(Path(path), Path(outdir), params)
-        result["prototype_workers"] = where
+        report = run_bake(Path(path), Path(outdir), params)
     except FoliageError as exc:
         result["error"] = {"code": exc.exit_code, "type": type(exc).__name__, "message": str(exc)}
     except MemoryError:
@@ -331,7 +321,7 @@ def _announce(topic: str, name: str) -> str | None:
     return worker.address
 
 
-def share_cores() -> None:
+def _share_cores() -> None:
     """numba's threads for this task: the machine's cores shared among the worker's task threads."""
     import numba
 

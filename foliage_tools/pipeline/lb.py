@@ -52,7 +52,6 @@ from foliage_tools.params import BASE_EXTENTS, DEFAULT_RESOLUTION, GRID_PRECISIO
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path
 from foliage_tools.pipeline.plan import available_memory
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct
-from foliage_tools.pipeline.fanout import fan_out
 from foliage_tools.pipeline.first_order import march_lb
 from foliage_tools.pipeline.gather import bake_gather, check_gather, resolve_rays
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes
@@ -320,16 +319,17 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
 def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], progress: Progress) -> list[LBPrototypeBake]:
     baked = scene.leafy_prototypes()
     progress.step(f"lattice-Boltzmann ({params.bases}) for {len(baked)} prototype(s)", total=len(baked))
-    calls = [(proto, i, sun_in_prototype(scene, i, sun, warnings), params,
-              density_for_bake(scene, proto, DensityParams(resolution=params.resolution, method="area"), warnings))
-             for i, proto in baked]
-    # the solves are independent: in a batch, one task each on its cluster (pipeline.fanout)
-    out = fan_out(bake_prototype, calls, on_done=progress.advance)
-    for (proto, *_), bake in zip(calls, out):
+    out = []
+    for i, proto in baked:
+        sun_local = sun_in_prototype(scene, i, sun, warnings)
+        dens = density_for_bake(scene, proto, DensityParams(resolution=params.resolution, method="area"), warnings)
+        bake = bake_prototype(proto, i, sun_local, params, dens)
         r = bake.result
         log.info("lb <%s>: %s lattice (%s), %s, %d sweeps, residual %.2e%s, %.1f MLUPS, %.2f s", proto.path,
                  "x".join(map(str, bake.grid.shape)), params.bases, r.solver, r.iterations, r.residual,
                  "" if r.converged else " (not converged)", r.mlups, bake.seconds)
+        out.append(bake)
+        progress.advance()
     return out
 
 

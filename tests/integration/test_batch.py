@@ -360,23 +360,3 @@ def test_a_worker_killed_in_the_middle_of_an_asset_is_retried_and_nothing_is_hal
     assert not hidden_entries(out)
     for name, outdir in reference.items():
         assert_same_bake(out / name, outdir)
-
-
-def test_a_forest_s_prototypes_are_solved_as_tasks_of_the_cluster_as_bake_solves_them(tmp_path):
-    """Issue #19: inside the asset's task, each prototype's lattice solve is a task of the batch's own cluster
-    (pipeline.fanout), so several prototypes do not solve one after another on one worker; the bake is bitwise
-    the one `foliage bake` writes."""
-    from tests.helpers.forests import mixed_forest
-
-    (tmp_path / "in").mkdir()
-    forest = mixed_forest(tmp_path / "in")
-    theirs = tmp_path / "bake"
-    r = foliage("bake", forest, "-o", theirs, *SMALL)
-    assert r.returncode == 0, r.stderr
-    r, report = batch(forest, "-o", tmp_path / "out", "--workers", "2")
-    assert r.returncode == 0, r.stderr
-    entry = report["stats"]["assets"]["forest"]
-    # three leafy prototypes: the native instances' asset and the point instancer's two
-    assert entry["status"] == "baked" and len(entry["prototype_workers"]) == 3
-    assert all(w and w.startswith("tcp://") for w in entry["prototype_workers"]), entry["prototype_workers"]
-    assert_same_bake(tmp_path / "out" / "forest", theirs)
