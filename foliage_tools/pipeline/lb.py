@@ -169,7 +169,7 @@ class LBBakeParams:
             raise UsageError(f"--grid-precision must be one of {', '.join(GRID_PRECISIONS)}, got {self.grid_precision!r}.")
         if self.storage == "fp16" and self.solver == "bicgstab":
             raise UsageError("--storage fp16 cannot be combined with --solver bicgstab (its Krylov vectors need more than "
-                             "16 bits); use --solver auto, iterate or extrapolate, or --storage fp32.")
+                             "16 bits); use --solver auto, ordered, iterate or extrapolate, or --storage fp32.")
         if not (0 < self.absorption_scale <= 1):
             raise UsageError(f"--absorption-scale must be in (0, 1], got {self.absorption_scale}.")
         if self.max_sweeps < 1:
@@ -427,10 +427,15 @@ def lb_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out:
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:scattered", e_scattered, type="color3f")
         edits.attributes += baked_sun_attribute(scene, bake.index, "lb", sun.direction)
         if not r.converged:  # DESIGN.md section 3: a bake that failed its own accuracy check exits 1
+            fixes = ["raise --max-sweeps" if r.iterations >= params.max_sweeps else None,
+                     "loosen --tolerance (float32 fields rarely get below ~1e-7)" if params.tolerance < 1e-7
+                     else "loosen --tolerance",
+                     None if "bicgstab" in r.solver or params.storage == "fp16" else "try --solver bicgstab"]
+            wanted = [x for x in fixes if x]
             report.findings.append(
-                f"prototype <{proto.path}>: LB stopped after {int(r.iterations)} sweeps at residual {r.residual:.2e}, above "
-                f"--tolerance {params.tolerance:g}. The layer was written with that residual in its metadata; raise "
-                f"--max-sweeps, loosen --tolerance or try --solver bicgstab."
+                f"prototype <{proto.path}>: LB stopped after {int(r.iterations)} sweep(s) ({r.solver}) at residual "
+                f"{r.residual:.2e}, above --tolerance {params.tolerance:g}. The layer was written with that residual in "
+                f"its metadata; {', '.join(wanted[:-1]) + ' or ' + wanted[-1] if len(wanted) > 1 else wanted[0]}."
             )
         proto_stats: LBPrototypeStats = {
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,

@@ -114,9 +114,15 @@ def transform_problem(prim: Usd.Prim, world: np.ndarray, path: str) -> Problem |
     )
 
 
+#: Per-instance lists of a PointInstancer that must be as long as protoIndices when authored (USD computes no
+#: instance transforms otherwise).
+_PER_INSTANCE = ("positions", "orientations", "scales")
+
+
 def instancer_index_problem(prim: Usd.Prim, path: str) -> Problem | None:
-    """A PointInstancer whose prototypes relationship names a missing prim, or whose protoIndices name no prototype
-    (USD then computes no instance transforms at all)."""
+    """A PointInstancer whose prototypes relationship names a missing prim or the instancer itself (or a prim
+    above it), whose protoIndices name no prototype, or whose positions, orientations or scales are not one per
+    instance (USD then computes no instance transforms at all)."""
     pi = UsdGeom.PointInstancer(prim)
     targets = pi.GetPrototypesRel().GetTargets()
     stage = prim.GetStage()
@@ -125,7 +131,21 @@ def instancer_index_problem(prim: Usd.Prim, path: str) -> Problem | None:
         return Problem("instancers", f"@{path}@: point instancer <{prim.GetPath()}> names a missing prototype <{missing[0]}>"
                        f"{f' (and {len(missing) - 1} more)' if len(missing) > 1 else ''}. Add the prototype's prim, or "
                        "take it out of the instancer's prototypes relationship.", str(prim.GetPath()))
-    indices = np.asarray(pi.GetProtoIndicesAttr().Get(Usd.TimeCode.Default()) or [], dtype=np.int64)
+    selfish = [str(t) for t in targets if prim.GetPath().HasPrefix(t)]
+    if selfish:
+        return Problem("instancers", f"@{path}@: point instancer <{prim.GetPath()}> names <{selfish[0]}>, itself or a prim "
+                       "above it, as a prototype, so it would instance itself. Point its prototypes relationship at "
+                       "prims outside it and below the instancer's own prototypes scope.", str(prim.GetPath()))
+    authored = pi.GetProtoIndicesAttr().Get(Usd.TimeCode.Default())
+    if authored is None:  # no instances: the reader skips the instancer and says so
+        return None
+    indices = np.asarray(authored, dtype=np.int64)
+    for name in _PER_INSTANCE:
+        values = prim.GetAttribute(name).Get(Usd.TimeCode.Default())
+        if values is not None and len(values) and len(values) != len(indices):
+            return Problem("instancers", f"@{path}@: point instancer <{prim.GetPath()}> has {len(values)} {name} for its "
+                           f"{len(indices)} protoIndices, so USD places none of its instances. Give it one of each per "
+                           "instance.", str(prim.GetPath()))
     bad = np.flatnonzero((indices < 0) | (indices >= len(targets)))
     if bad.size:
         return Problem("instancers", f"@{path}@: point instancer <{prim.GetPath()}> has {bad.size} protoIndices outside "
@@ -146,7 +166,7 @@ def instancer_problems(prim: Usd.Prim, world: np.ndarray, path: str) -> Iterator
     t = Usd.TimeCode.Default()
     xforms = pi.ComputeInstanceTransformsAtTime(t, t, UsdGeom.PointInstancer.IncludeProtoXform,
                                                 UsdGeom.PointInstancer.IgnoreMask)
-    if xforms is None:
+    if xforms is None or len(xforms) == 0:  # no instances (none authored: the reader says it skips the instancer)
         return
     mask = pi.ComputeMaskAtTime(t)  # instances deactivated by inactiveIds are not read, so not checked
     m = np.asarray(world, dtype=np.float64) @ np.transpose(np.array(xforms, dtype=np.float64).reshape(-1, 4, 4), (0, 2, 1))
@@ -164,9 +184,9 @@ def instancer_problems(prim: Usd.Prim, world: np.ndarray, path: str) -> Iterator
         yield Problem(
             "transforms",
             f"@{path}@: {len(bad)} instance(s) of point instancer <{prim.GetPath()}> (first: index {bad[0]}) have a "
-            f"transform that collapses or overflows (scales outside {MIN_SCALE:g} to {MAX_SCALE:g}), so a bake cannot "
-            "place them. Fix their scales or orientations (or the instancer's own transform), or deactivate them "
-            "(inactiveIds).",
+            f"transform that is not finite, collapses or overflows (scales outside {MIN_SCALE:g} to {MAX_SCALE:g}), so "
+            "a bake cannot place them. Fix their positions, scales or orientations (or the instancer's own "
+            "transform), or deactivate them (inactiveIds).",
             str(prim.GetPath()),
         )
 

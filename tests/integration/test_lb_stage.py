@@ -172,7 +172,7 @@ def test_an_lb_bake_short_of_its_tolerance_is_written_and_exits_1(tmp_path):
     assert "accuracy check failed" in r.stderr and "--max-sweeps" in r.stderr
     report = json.loads(r.stdout)
     assert report["stats"]["iterations"] == 2 and report["stats"]["residual"] > 1e-5
-    assert any("LB stopped after 2 sweeps" in w for w in report["warnings"])
+    assert any("LB stopped after 2 sweep(s) (iterate)" in w and "raise --max-sweeps" in w for w in report["warnings"])
     # written, with the residual it stopped at in its metadata
     stage = Usd.Stage.Open(str(out))
     vol = stage.GetPrimAtPath("/Tree/FoliageLighting")

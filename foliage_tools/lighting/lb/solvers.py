@@ -136,11 +136,12 @@ def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: lis
     n = 0
     passes = 0
     while n < budget:
-        op.ordered_sweep(f, forward=passes % 2 == 0)
-        passes += 1
-        n += 1
-        if passes < 2 or n >= budget:  # measure once both orders have run
-            continue
+        if n + 2 <= budget:  # room for an ordered sweep and the plain one that measures it
+            op.ordered_sweep(f, forward=passes % 2 == 0)
+            passes += 1
+            n += 1
+            if passes < 2 and n + 2 <= budget:  # measure once both orders have run, or where the budget ends
+                continue
         r = op.sweep(f, out, residual=True)
         assert r is not None  # swept with residual=True
         f, out = out, f
