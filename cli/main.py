@@ -103,11 +103,11 @@ def inspect(scene: Path, as_json: bool, quiet: bool, verbose: int) -> None:
 
 
 @cli.command()
-@SCENE
+@click.argument("scene", type=click.Path(path_type=Path, dir_okay=True), required=False)
 @click.option("--strict", is_flag=True, help="Treat warnings (e.g. degenerate triangles) as failures too.")
-@click.option("--list-rules", is_flag=True, help="List the rules that are checked and exit.")
+@click.option("--list-rules", is_flag=True, help="List the rules that are checked and exit (no SCENE needed).")
 @common_options
-def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: bool, verbose: int) -> None:
+def validate(scene: Path | None, strict: bool, list_rules: bool, as_json: bool, quiet: bool, verbose: int) -> None:
     """Check SCENE with USD's validators and the foliage rules.
 
     Exits 1 when an error is found (or a warning, with --strict), 0 when clean.
@@ -116,7 +116,10 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
     referenced .vdb exists and holds its named grid with finite values; each
     bake layer's grid files and upstream layers are the ones it was written
     with (content hashes it records: a file from another run is named as
-    stale); plus USD's composition, stage-metadata, shading and lux validators.
+    stale); point instancers' prototypes, protoIndices and per-instance lists
+    line up; warnings where the bakes leave geometry out (instancing nested in
+    a prototype, meshes without points or faces); plus USD's composition,
+    stage-metadata, shading and lux validators. --list-rules names them all.
 
     \b
     Example (CI):
@@ -131,6 +134,8 @@ def validate(scene: Path, strict: bool, list_rules: bool, as_json: bool, quiet: 
             for name, doc in rule_docs():
                 console.stdout.print(f"{name}: {doc}", highlight=False)
             return 0
+        if scene is None:
+            raise click.UsageError("Missing argument 'SCENE' (the USD file to check; --list-rules needs none).")
         report, failed = run_validate(scene, strict=strict)
         if as_json:
             console.print_json(report.as_json())

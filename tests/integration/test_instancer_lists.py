@@ -65,3 +65,12 @@ def test_an_instancer_with_no_instances_is_not_an_error(tmp_path):
     v = foliage("validate", path)
     assert v.returncode in (0, 1) and "internal error" not in v.stderr, v.stdout + v.stderr
     assert "[instancers]" not in v.stdout
+
+
+def test_list_rules_needs_no_scene_and_names_the_new_rules():
+    r = foliage("validate", "--list-rules")
+    assert r.returncode == 0, r.stderr
+    names = {line.split(":")[0] for line in r.stdout.splitlines() if ":" in line}
+    assert {"instancers", "nested-instancing", "empty-meshes", "transforms"} <= names, names
+    missing = foliage("validate")
+    assert missing.returncode == 2 and "Missing argument 'SCENE'" in missing.stderr
