@@ -252,11 +252,6 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
     if params.solver == "ordered":
         f, sweeps, res = _ordered(op, f, tol, params.max_sweeps, history)
         used.append("ordered")
-    if params.solver in ("auto", "ordered") and not np.all(np.isfinite(res)):
-        # max_sweeps left no room to measure the ordered sweeps: one plain sweep does
-        f, n, res, _ = _iterate(op, f, tol, 1, 1, history, None)
-        sweeps += n
-        used.append("iterate")
     krylov = params.solver == "bicgstab"
     if switched:  # auto, and plain iteration is slow
         krylov = 6 * op.field_bytes <= params.memory_limit and params.storage == "fp32"
