@@ -235,17 +235,17 @@ def _solve(tau, omega, mu0, n, depths, floor_albedo, chi) -> SlabSolution:
             return e, e, e, e, e
         nod = mode0.nodal(t)
         ip, im = nod[:, :n], nod[:, n:]
+        da = direct_actinic(t)
+        f_dir = mu0 * da if beam else np.zeros(t.shape)
         # at the top the downward radiances are the boundary condition itself (no diffuse light for a beam, 1/pi for
         # the unit sky), which the modes' sum meets only to round-off (-1e-12 at omega 0.94, mu0 0.99, tau 0.5)
         im = np.where((t == 0.0)[:, None], 0.0 if beam else 1.0 / math.pi, im)
         f_dn = 2.0 * math.pi * im @ (w * mu)
         if not inf:  # and at the floor the upward ones are its Lambertian reflection of all that reaches it
-            at_floor = floor_albedo / math.pi * (f_dn + (mu0 * direct_actinic(t) if beam else 0.0))
+            at_floor = floor_albedo / math.pi * (f_dn + f_dir)
             ip = np.where((t == tau)[:, None], at_floor[:, None], ip)
         f_up = 2.0 * math.pi * ip @ (w * mu)
         act_diff = 2.0 * math.pi * (ip + im) @ w
-        da = direct_actinic(t)
-        f_dir = mu0 * da if beam else np.zeros(t.shape)
         return f_dir, f_dn, f_up, act_diff + da, act_diff
 
     f_dir, f_dn, f_up, act, act_diff = profile(depths)
