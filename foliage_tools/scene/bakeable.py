@@ -114,6 +114,11 @@ def transform_problem(prim: Usd.Prim, world: np.ndarray, path: str) -> Problem |
     )
 
 
+def mesh_is_empty(points, counts, indices) -> bool:
+    """A mesh without points or faces (any of the three unauthored or empty): the readers skip it."""
+    return points is None or counts is None or indices is None or len(points) == 0 or len(counts) == 0
+
+
 #: Per-instance lists of a PointInstancer that must be as long as protoIndices when authored (USD computes no
 #: instance transforms otherwise).
 _PER_INSTANCE = ("positions", "orientations", "scales")
@@ -156,18 +161,23 @@ def instancer_index_problem(prim: Usd.Prim, path: str) -> Problem | None:
 
 
 def instancer_problems(prim: Usd.Prim, world: np.ndarray, path: str) -> Iterator[Problem]:
-    """A PointInstancer's bad prototypes or protoIndices (:func:`instancer_index_problem`), else its instances
-    (``world`` = the instancer's world transform) whose transforms collapse or overflow."""
-    index = instancer_index_problem(prim, path)
-    if index is not None:
-        yield index
-        return
+    """A PointInstancer's bad prototypes or lists (:func:`instancer_index_problem`), else its instances whose
+    transforms cannot be placed (:func:`instancer_transform_problem`)."""
+    problem = instancer_index_problem(prim, path) or instancer_transform_problem(prim, world, path)
+    if problem is not None:
+        yield problem
+
+
+def instancer_transform_problem(prim: Usd.Prim, world: np.ndarray, path: str) -> Problem | None:
+    """Instances of a PointInstancer (``world`` = the instancer's world transform) whose transforms are not
+    finite, collapse or overflow; None too when USD computes none (no instances, or lists that do not line up:
+    :func:`instancer_index_problem`)."""
     pi = UsdGeom.PointInstancer(prim)
     t = Usd.TimeCode.Default()
     xforms = pi.ComputeInstanceTransformsAtTime(t, t, UsdGeom.PointInstancer.IncludeProtoXform,
                                                 UsdGeom.PointInstancer.IgnoreMask)
-    if xforms is None or len(xforms) == 0:  # no instances (none authored: the reader says it skips the instancer)
-        return
+    if xforms is None or len(xforms) == 0:
+        return None
     mask = pi.ComputeMaskAtTime(t)  # instances deactivated by inactiveIds are not read, so not checked
     m = np.asarray(world, dtype=np.float64) @ np.transpose(np.array(xforms, dtype=np.float64).reshape(-1, 4, 4), (0, 2, 1))
     lin = m[:, :3, :3]
@@ -180,15 +190,16 @@ def instancer_problems(prim: Usd.Prim, world: np.ndarray, path: str) -> Iterator
         & (np.nanmax(np.where(np.isfinite(s), s, -np.inf), axis=1) <= MAX_SCALE)
     active = np.ones(len(lin), bool) if not mask else np.asarray(mask, dtype=bool)
     bad = np.flatnonzero(active & ~good).tolist()
-    if bad:
-        yield Problem(
-            "transforms",
-            f"@{path}@: {len(bad)} instance(s) of point instancer <{prim.GetPath()}> (first: index {bad[0]}) have a "
-            f"transform that is not finite, collapses or overflows (scales outside {MIN_SCALE:g} to {MAX_SCALE:g}), so "
-            "a bake cannot place them. Fix their positions, scales or orientations (or the instancer's own "
-            "transform), or deactivate them (inactiveIds).",
-            str(prim.GetPath()),
-        )
+    if not bad:
+        return None
+    return Problem(
+        "transforms",
+        f"@{path}@: {len(bad)} instance(s) of point instancer <{prim.GetPath()}> (first: index {bad[0]}) have a "
+        f"transform that is not finite, collapses or overflows (scales outside {MIN_SCALE:g} to {MAX_SCALE:g}), so "
+        "a bake cannot place them. Fix their positions, scales or orientations (or the instancer's own "
+        "transform), or deactivate them (inactiveIds).",
+        str(prim.GetPath()),
+    )
 
 
 def light_problem(prim: Usd.Prim, world: np.ndarray, path: str) -> Problem | None:

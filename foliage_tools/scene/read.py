@@ -128,7 +128,7 @@ class _Reader:
         pts = mesh.GetPointsAttr().Get()
         counts = mesh.GetFaceVertexCountsAttr().Get()
         idx = mesh.GetFaceVertexIndicesAttr().Get()
-        if pts is None or counts is None or idx is None or len(pts) == 0 or len(counts) == 0:
+        if bakeable.mesh_is_empty(pts, counts, idx):
             self.warnings.append(f"{self.path}: mesh <{prim.GetPath()}> has no points or faces; skipped.")
             return None
         points = np.asarray(pts, dtype=np.float64)

@@ -144,9 +144,9 @@ def _transforms(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         elif prim.IsA(UsdLux.DistantLight):
             problem = bakeable.light_problem(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
         elif prim.IsA(UsdGeom.PointInstancer):
-            problem = next(bakeable.instancer_problems(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path), None)
-            if problem is not None and problem.rule != "transforms":  # the instancers rule reports it
-                problem = None
+            # one whose lists do not line up is the instancers rule's (USD warns computing its transforms)
+            problem = None if bakeable.instancer_index_problem(prim, path) else bakeable.instancer_transform_problem(
+                prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
         else:
             continue
         if problem is not None and problem.message not in seen:  # once per culprit, not per mesh under it
@@ -191,8 +191,8 @@ def _empty_meshes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         if not prim.IsA(UsdGeom.Mesh):
             continue
         mesh = UsdGeom.Mesh(prim)
-        pts, counts = mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get()
-        if pts is None or counts is None or len(pts) == 0 or len(counts) == 0:
+        if bakeable.mesh_is_empty(mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get(),
+                                  mesh.GetFaceVertexIndicesAttr().Get()):
             what = "leaf " if classify_leaf(prim)[0] else ""
             yield Finding(WARNING, "empty-meshes", f"{what}mesh <{prim.GetPath()}> has no points or faces; the bakes skip "
                           "it. Give it its geometry, or remove it.", str(prim.GetPath()))
