@@ -184,6 +184,7 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
     from foliage_tools.pipeline.preview import PreviewParams, run_preview
     from foliage_tools.pipeline.smax import SmaxParams, run_smax
     from foliage_tools.pipeline.spp import SppParams, run_spp
+    from foliage_tools.pipeline.stage import begin_bake
 
     stages = {}
     if params.direct.mode == "rays":
@@ -191,7 +192,6 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
         from dataclasses import replace
 
         from foliage_tools.pipeline.direct import bake_direct
-        from foliage_tools.pipeline.stage import begin_bake
 
         _, scene, sun = begin_bake("bake", path, None, params.sun, progress)
         params = replace(params, direct=replace(params.direct, precomputed=bake_direct(scene, sun, params.direct, progress)))
@@ -209,11 +209,10 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
     )
     # a picture of the bake: direct light beside direct + each method's indirect, same exposure; per-leaf
     # primvars exist only on editable prototypes (a forest of native instances has none: direct light only)
-    from foliage_tools.scene.read import read_scene
-
     from foliage_tools.pipeline.world import traced_alone, world_triangles
 
-    scene = read_scene(path)[0]
+    # the input as the stages read it, and its sun (the reference below traces it)
+    _, scene, sun = begin_bake("bake", path, None, params.sun, progress)
     editable = any(p.editable and p.leaves.count for p in scene.prototypes)
     # a forest too large to copy for the rays is also too large to draw in full on a software rasteriser (10 000
     # trees: the sky pass alone ran past 10 minutes): far trees thinned, no sky occlusion, one sample per pixel
@@ -240,15 +239,13 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
         from foliage_tools.scene.atomic import atomic_outputs
 
         from foliage_tools.pipeline.reference import ReferenceParams, bake_reference, run_reference
-        from foliage_tools.pipeline.stage import begin_bake as begin
 
         bench_params = BenchParams(optics=params.optics, sun=params.sun, paths=params.reference_paths, noise=params.reference_noise,
                                    paths_flag="--reference-paths", noise_flag="--reference-noise", direct_samples=params.direct.samples)
         ref_params = ReferenceParams(optics=params.optics, sun=params.sun, paths=params.reference_paths, noise=params.reference_noise)
         # one trace for the bench and the reference layer, where both would trace the same copied scene (a forest
         # the bakes trace as lone trees is traced through its placements for the layer, copied whole for the bench)
-        _, ref_scene, ref_sun = begin("bake", path, None, params.sun, progress)
-        traced = None if traced_alone(ref_scene) else bake_reference(ref_scene, ref_sun, ref_params, progress, flat=True)
+        traced = None if big else bake_reference(scene, sun, ref_params, progress, flat=True)
         bench = _stage("bench", run_bench, path, bench_params, progress=progress, traced=traced)
         stages["bench"] = bench
         json_path = work / "bench.json"
