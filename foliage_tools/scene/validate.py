@@ -363,6 +363,7 @@ def _usd_findings(stage: Usd.Stage) -> Iterator[Finding]:
     reg = UsdValidation.ValidationRegistry()
     names = [n for n in USD_VALIDATORS if reg.HasValidator(n)]
     ctx = UsdValidation.ValidationContext(reg.GetOrLoadValidatorsByName(names))
+    found = []
     for err in ctx.Validate(stage):
         if err.HasNoError():
             continue
@@ -370,7 +371,12 @@ def _usd_findings(stage: Usd.Stage) -> Iterator[Finding]:
         severity = ERROR if err.GetType() == UsdValidation.ValidationErrorType.Error else WARNING
         validator = err.GetValidator()
         rule_name = validator.GetMetadata().name if validator else err.GetName()
-        yield Finding(severity, rule_name, err.GetMessage(), sites[0] if sites else "")
+        found.append(Finding(severity, rule_name, err.GetMessage(), sites[0] if sites else ""))
+    # USD runs its validators in parallel, so their errors interleave in any order: grouped in USD_VALIDATORS'
+    # order (a stable sort keeps each validator's own order), the same stage always reads the same (a CI log's
+    # diff, the corpus baselines)
+    order = {name: k for k, name in enumerate(USD_VALIDATORS)}
+    yield from sorted(found, key=lambda f: (order.get(f.rule, len(order)), f.rule))
 
 
 def validate(path: str | Path) -> list[Finding]:
