@@ -7,9 +7,12 @@ Tasks are per asset, not per prototype: the bake's stages light every
 prototype of a scene together (the forest lattice and the exact direct light
 see all instances), so a forest is one task.
 
-The cluster is local by default (``workers`` processes of one thread each,
-numba limited to its share of the cores, so the bakes do not oversubscribe
-them) or an existing one (``scheduler``, a farm's ``tcp://HOST:PORT``).
+The cluster is local by default (``workers`` processes of one thread each)
+or an existing one (``scheduler``, a farm's ``tcp://HOST:PORT``). A task's
+numba threads are its host's cores divided by the tasks running there,
+re-shared at each step of its bake (``_CoreShare``): the bakes do not
+oversubscribe the cores, and the last large asset of a batch takes the cores
+the others leave.
 Assets whose key is unchanged (``batch_cache``) are not sent at all; when
 nothing is left to bake no cluster is started.
 
@@ -207,7 +210,7 @@ def _entry(p: _Plan, fut, outroot: Path, attempts: int) -> dict:
     if fut.status == "finished":
         result = fut.result()
         entry.update(status=result["status"], seconds=result["seconds"], warnings=result["warnings"],
-                     error=result["error"], worker=result["worker"], outputs=[_relative(o, outroot) for o in result["outputs"]])
+                     error=result["error"], worker=result["worker"], threads=result["threads"], outputs=[_relative(o, outroot) for o in result["outputs"]])
     else:
         exc = fut.exception()
         kind = type(exc).__name__
@@ -269,7 +272,8 @@ class _client:
         self.cluster = LocalCluster(
             n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
             silence_logs=logging.WARNING,
-            env={"NUMBA_NUM_THREADS": str(max(1, cores // workers))},
+            # each worker may use every core, and uses its share of them (``_CoreShare``)
+            env={"NUMBA_NUM_THREADS": str(cores)},
         )
         self.client = Client(self.cluster, set_as_default=False)
         return self.client
@@ -286,11 +290,12 @@ def bake_asset(name: str, path: str, outdir: str, params: BakeParams, topic: str
     from foliage_tools.pipeline.bake import run_bake
 
     worker = _announce(topic, name)
-    _share_cores()
+    share = _CoreShare()
+    share.step("start")
     started = time.perf_counter()
     result = {"status": "failed", "seconds": 0.0, "outputs": [], "warnings": [], "error": None, "worker": worker}
     try:
-        report = run_bake(Path(path), Path(outdir), params)
+        report = run_bake(Path(path), Path(outdir), params, progress=share)
     except FoliageError as exc:
         result["error"] = {"code": exc.exit_code, "type": type(exc).__name__, "message": str(exc)}
     except MemoryError:
@@ -306,6 +311,7 @@ def bake_asset(name: str, path: str, outdir: str, params: BakeParams, topic: str
         else:
             result["status"] = "baked"
     result["seconds"] = round(time.perf_counter() - started, 3)
+    result["threads"] = share.threads
     return result
 
 
@@ -321,15 +327,62 @@ def _announce(topic: str, name: str) -> str | None:
     return worker.address
 
 
-def _share_cores() -> None:
-    """numba's threads for this task: the machine's cores shared among the worker's task threads."""
+#: ``_CoreShare`` asks the scheduler at most this often (seconds).
+SHARE_INTERVAL = 1.0
+
+
+class _CoreShare:
+    """The progress of a batch task: at each step of the bake, numba's threads re-shared (``_share_cores``).
+
+    A bake announces every stage and most sub-steps, so when the other tasks on the host end (the
+    batch's last large asset), this one takes their cores from its next step on; when tasks start
+    beside it again it gives them back at its next step. It asks the scheduler at most once per
+    ``SHARE_INTERVAL``.
+    """
+
+    def __init__(self) -> None:
+        self.threads: list[int] = []  # the thread count chosen at each re-share (for the batch's record)
+        self._next = 0.0
+
+    def step(self, message: str, total: int | None = None) -> None:
+        now = time.monotonic()
+        if now >= self._next:
+            self._next = now + SHARE_INTERVAL
+            n = _share_cores()
+            if not self.threads or self.threads[-1] != n:
+                self.threads.append(n)
+
+    def advance(self, n: int = 1) -> None:
+        pass
+
+
+def _running_on_host(dask_scheduler: Any, host: str) -> int:
+    """On the scheduler: tasks executing on the workers of ``host`` (each worker at most its thread count)."""
+    return sum(min(len(ws.processing), ws.nthreads) for ws in dask_scheduler.workers.values() if ws.host == host)
+
+
+def _share_cores() -> int:
+    """numba's threads for this task: the host's cores shared among the tasks running on it; the count set.
+
+    Off a worker (called directly), or when the scheduler cannot say, the worker's own thread slots
+    stand in for the tasks (a farm's workers started with ``--nthreads 1`` each get their share).
+    """
     import numba
 
+    busy = 1
     try:
-        from distributed import get_worker
+        from distributed import get_client, get_worker
+        from distributed.comm import get_address_host
 
-        slots = get_worker().state.nthreads
+        worker = get_worker()
+        busy = worker.state.nthreads
+        try:
+            busy = get_client().run_on_scheduler(_running_on_host, host=get_address_host(worker.address))
+        except Exception as exc:  # a scheduler that refuses run_on_scheduler: the static share
+            log.debug("cannot ask the scheduler for the tasks on this host (%s); sharing by thread slots", exc)
     except ValueError:
-        slots = 1
+        pass
     # numba.config sets its options as module globals at import: not in its type information
-    numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS, _cores() // max(1, slots))))  # type: ignore[attr-defined]
+    n = max(1, min(numba.config.NUMBA_NUM_THREADS, _cores() // max(1, busy)))  # type: ignore[attr-defined]
+    numba.set_num_threads(n)
+    return n
