@@ -868,3 +868,45 @@ def test_sun_boundary_splits(sun):
     assert 1.0 - 1e-12 <= f.sum() <= 1.23
     with pytest.raises(ValueError, match="split"):
         sun_boundary(sun, "nearest")
+
+
+def test_the_stall_rule_stops_at_a_round_off_floor_and_never_on_a_slow_descent():
+    """``_stalled`` against residual sequences whose answer is known: a geometric descent at q = 0.999 per sweep
+    (a slowly converging medium) reaches a new low in every window, so it is never stalled, whatever its level; a
+    residual flat at float32's round-off (noise around 1.6e-8, as a 24^3 float32 solve shows) is stalled once
+    two windows have passed; and a flat residual far above round-off (1e-3) is left to max_sweeps."""
+    from foliage_tools.lighting.lb.solvers import STALL_SWEEPS, _stalled
+
+    f32 = np.dtype(np.float32)
+    noise = np.random.default_rng(0)
+    for start in (1e-5, 1e-7):
+        slow = [(t, start * 0.999**t) for t in range(4, 4000, 4)]
+        assert not any(_stalled(slow[: i + 1], t, r, f32) for i, (t, r) in enumerate(slow))
+    flat = [(t, 1.6e-8 * (1 + 0.05 * noise.uniform(-1, 1))) for t in range(4, 1200, 4)]
+    stops = [t for i, (t, r) in enumerate(flat) if _stalled(flat[: i + 1], t, r, f32)]
+    assert stops and 2 * STALL_SWEEPS <= stops[0] <= 4 * STALL_SWEEPS
+    high = [(t, 1e-3) for t in range(4, 1200, 4)]
+    assert not any(_stalled(high[: i + 1], t, r, f32) for i, (t, r) in enumerate(high))
+
+
+@pytest.mark.parametrize("solver", ["iterate", "ordered"])
+def test_a_tolerance_below_float32_round_off_stops_at_the_floor_not_at_max_sweeps(solver):
+    """float32 sums cannot take the relative residual much below its epsilon (1.2e-7): a solve asked for 1e-12
+    stops once the residual stops falling, reports converged False, and is no worse than the same solve run to
+    max_sweeps (its residual within 2x of that one's, which sits at the same floor)."""
+    rho = sphere(12, 0.45, 0.9)
+    pb = LBProblem(rho, Medium((0.1,), (0.9,), (0.3,)), (sun_boundary((0.3, 0.2, 1.0)),))
+    r = solve(pb, LBParams(dtype="float32", tolerance=1e-12, solver=solver, max_sweeps=3000))
+    assert not r.converged and r.iterations < 1000
+    assert r.residual < 1e-6  # it went down to round-off first
+    full = solve(pb, LBParams(dtype="float32", tolerance=1e-12, solver="iterate", max_sweeps=3000, check_every=3000))
+    assert full.iterations == 3000 and r.residual <= 2 * full.residual + 1e-9
+
+
+def test_bicgstab_with_no_room_for_a_step_says_plain_sweeps_ran():
+    """BiCGSTAB needs 4 sweeps for one step and its measuring sweep: with max_sweeps 3 plain sweeps run instead,
+    and the result names them, not BiCGSTAB."""
+    pb = LBProblem(sphere(8, 0.45, 0.9), Medium((0.1,), (0.9,), (0.3,)), (sun_boundary((0.3, 0.2, 1.0)),))
+    r = solve(pb, LBParams(dtype="float64", solver="bicgstab", max_sweeps=3))
+    assert r.solver == "iterate" and r.iterations <= 3
+    assert "bicgstab" in solve(pb, LBParams(dtype="float64", solver="bicgstab", max_sweeps=8)).solver
