@@ -334,14 +334,15 @@ SHARE_INTERVAL = 1.0
 class _CoreShare:
     """The progress of a batch task: at each step of the bake, numba's threads re-shared (``_share_cores``).
 
-    A bake announces every stage and most sub-steps, so when the other tasks on the host end (the
+    A bake announces every stage and advances through its long loops, so when the other tasks on the host end (the
     batch's last large asset), this one takes their cores from its next step on; when tasks start
     beside it again it gives them back at its next step. It asks the scheduler at most once per
     ``SHARE_INTERVAL``.
     """
 
     def __init__(self) -> None:
-        self.threads: list[int] = []  # the thread count chosen at each re-share (for the batch's record)
+        self.threads: list[tuple[float, int]] = []  # (seconds into the task, thread count) at each change
+        self._start = time.monotonic()
         self._next = 0.0
 
     def step(self, message: str, total: int | None = None) -> None:
@@ -349,11 +350,11 @@ class _CoreShare:
         if now >= self._next:
             self._next = now + SHARE_INTERVAL
             n = _share_cores()
-            if not self.threads or self.threads[-1] != n:
-                self.threads.append(n)
+            if not self.threads or self.threads[-1][1] != n:
+                self.threads.append((round(now - self._start, 1), n))
 
     def advance(self, n: int = 1) -> None:
-        pass
+        self.step("")
 
 
 def _running_on_host(dask_scheduler: Any, host: str) -> int:
