@@ -172,7 +172,7 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         protos.append({
             "path": proto.path, "leaves": n, "instances": instances, "grid": list(grid.shape),
             "voxel_size": grid.voxel_size, "lb_rhs": rhs, "lb_sweeps_estimate": round(sweeps),
-            "lb_memory_bytes": lb_bytes, "smax_path": "fast" if fast else "reference",
+            "lb_memory_bytes": round(lb_bytes), "smax_path": "fast" if fast else "reference",
             "seconds_estimate": est,
         })
     if not protos:

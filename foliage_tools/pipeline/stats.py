@@ -314,7 +314,7 @@ class PlanPrototypeStats(TypedDict):
     voxel_size: float
     lb_rhs: int
     lb_sweeps_estimate: int
-    lb_memory_bytes: float
+    lb_memory_bytes: int
     smax_path: str
     seconds_estimate: dict[str, float]
 
