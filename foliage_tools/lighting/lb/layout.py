@@ -15,7 +15,7 @@ from foliage_tools.lighting.lattice import DIRECTIONS
 from foliage_tools.lighting.lb.beam import beam_fields
 from foliage_tools.lighting.lb.directions import NQ, power_weights
 from foliage_tools.lighting.lb.kernels_collide import _parity_blocks
-from foliage_tools.lighting.lb.kernels_field import _balance, _dot, _once_scattered
+from foliage_tools.lighting.lb.kernels_field import _balance, _dot, _field_energy, _once_scattered, _put_transmitted
 from foliage_tools.lighting.lb.kernels_ordered import _sweep_ordered
 from foliage_tools.lighting.lb.kernels_sweep import _sweep_blocks, _sweep_rows
 from foliage_tools.lighting.lb.problem import LBProblem
@@ -151,11 +151,8 @@ class _Operator:
         first-collision source carried along each lattice line without further scattering (one ordered
         pass per direction, exact for that order of scattering)."""
         f = self.zeros()
-        nodes = self._nodes(f)
         for q, t in _transmittances(problem, self.bnd.any(axis=1), self.dtype):
-            # t (nx, ny, nz, C) -> (nx, NB, G, C, nz, K)
-            nodes[:, :, :, q] = to_storage(self._padded(t).transpose(0, 1, 2, 4, 3)[..., None] * self.bnd[q].astype(self.dtype),
-                                           self.storage)
+            _put_transmitted(f, q, t, np.ascontiguousarray(self.bnd[q], dtype=self.dtype), self.G)
         if self.beams is not None:
             att_a, att_d = _attenuations(problem, np.float64)
             _once_scattered(f, att_a, att_d, self.beams.power, self.cq, self.mat, np.nonzero(self.beam_rhs)[0], self.G)
@@ -180,14 +177,9 @@ class _Operator:
 
     def energy(self, f: np.ndarray) -> np.ndarray:
         """Energy density u = sum_i f_i per node and right-hand side, (nx, ny, nz, K, C)."""
-        if f.dtype == self.dtype:
-            u = f.sum(axis=2)
-        else:  # stored in 16 bits: widen one direction at a time (a float32 copy of the field would double it)
-            u = from_storage(f[:, :, 0], self.dtype)
-            for q in range(1, NQ):
-                u += from_storage(f[:, :, q], self.dtype)
-        u = u.reshape(self.nx, self.NB, self.C, self.G, self.nz, self.K)
-        return np.ascontiguousarray(self._rows(u.transpose(0, 1, 3, 4, 5, 2)))
+        u = np.empty((self.nx, self.ny, self.nz, self.K, self.C), self.dtype)
+        _field_energy(f, self.ny, u)
+        return u
 
     def vec(self, a: np.ndarray) -> np.ndarray:
         return a.reshape(self.nx, self.NB * NQ, self.C, self.L)

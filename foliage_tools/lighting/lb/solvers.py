@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from foliage_tools.lighting.lb.directions import NQ
-from foliage_tools.lighting.lb.kernels_field import _axpy_norm, _extrapolate, _p_update, _update_xr
+from foliage_tools.lighting.lb.kernels_field import _axpy_norm, _copy_field, _extrapolate, _p_update, _update_xr
 from foliage_tools.lighting.lb.layout import _Operator, _safe_div
 from foliage_tools.lighting.lb.problem import LBNumericalError, LBParams, LBProblem, LBResult
 
@@ -72,7 +72,7 @@ def _iterate(
       extrapolation). The stopping test is unchanged, so a poor jump can only
       cost sweeps, never fake convergence.
     """
-    out = f.copy()
+    out = _copy_field(f)
     res = np.full((op.C, op.K), np.inf)
     warm = max(16, op.nx, op.ny, op.nz) if warmup is None else warmup
     checks: list[tuple[int, float]] = []
@@ -151,7 +151,7 @@ def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: lis
     64^3, 128 at 128^3), whereas an ordered sweep carries half the directions across the whole grid and the
     residual falls by about an order of magnitude per sweep whatever the grid's size (``kernels_ordered``).
     """
-    out = f.copy()  # the sweeps never write inflow slots: both fields hold the boundary values there
+    out = _copy_field(f)  # the sweeps never write inflow slots: both fields hold the boundary values there
     res = np.full((op.C, op.K), np.inf)
     n = 0
     passes = 0

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from foliage_tools.lighting.collision import diagonal_density
 from foliage_tools.lighting.lb.beam import beam_fields
@@ -35,6 +35,22 @@ def _transmit(att, cx, cy, cz, out):  # pragma: no cover - compiled
                         out[x, y, z, c] = out[ux, uy, uz, c] * att[ux, uy, uz, c]
 
 
+@njit(parallel=True, cache=True)
+def _add_transmitted(energy, t, b):  # pragma: no cover - compiled
+    """energy[..., k, :] += b[k] t for the right-hand sides k with inflow b[k] != 0 along this direction.
+
+    t (nx, ny, nz, C); energy (nx, ny, nz, K, C); one parallel pass (numpy's strided updates of a 128^3 field
+    with 18 bases took 2.1 s)."""
+    nx, ny, nz, C = t.shape
+    for x in prange(nx):
+        for y in range(ny):
+            for z in range(nz):
+                for k in range(b.size):
+                    if b[k] != 0:
+                        for c in range(C):
+                            energy[x, y, z, k, c] += b[k] * t[x, y, z, c]
+
+
 def unscattered_energy(problem: LBProblem, dtype: str = "float32") -> np.ndarray:
     """Energy density u_unscattered (nx, ny, nz, K, C) of never-scattered light, exactly, in one pass.
 
@@ -52,8 +68,7 @@ def unscattered_energy(problem: LBProblem, dtype: str = "float32") -> np.ndarray
     bnd = np.array([b.inflow for b in problem.boundaries], dtype=np.float64)  # (K, 18)
     energy = np.zeros((nx, ny, nz, len(problem.boundaries), problem.channels), dtype)
     for q, t in _transmittances(problem, bnd.any(axis=0), dtype):
-        for k in np.nonzero(bnd[:, q])[0]:
-            energy[..., k, :] += np.asarray(bnd[k, q], dtype) * t
+        _add_transmitted(energy, t, np.ascontiguousarray(bnd[:, q], dtype=dtype))
     if any(b.beam is not None for b in problem.boundaries):
         energy += beam_fields(problem).direct.astype(dtype)
     return energy
