@@ -8,7 +8,7 @@ import numpy as np
 
 from foliage_tools.pipeline.report import Report
 from foliage_tools.scene.model import Scene
-from foliage_tools.scene.read import read_scene
+from foliage_tools.scene.read import LEAF_MESH_RULE, read_scene
 from foliage_tools.pipeline.stats import InspectPrototypeStats, InspectStats
 
 
@@ -24,10 +24,25 @@ def _bounds_world(scene: Scene) -> list[list[float]] | None:
     return [c.min(axis=0).tolist(), c.max(axis=0).tolist()]
 
 
+def _no_leaves(scene: Scene, path: Path) -> str | None:
+    """Why the bakes would find no leaf in ``scene`` (they refuse it: ``density.require_leaves``), or None."""
+    if any(p.leaves.count for p in scene.prototypes):
+        return None
+    n = sum(len(p.meshes) for p in scene.prototypes)
+    read = f"none of the {n} mesh(es) read is a leaf mesh" if n else "no mesh was read"
+    return (f"@{path}@ has no leaves: {read}, so every bake refuses it. A leaf is a connected piece of a leaf mesh, "
+            f"and a leaf mesh is one with {LEAF_MESH_RULE}; invisible meshes, guide/proxy purposes and meshes without "
+            "points or faces are left out. Mark the asset's leaf meshes one of these ways (`foliage validate` names "
+            "what it finds).")
+
+
 def inspect(path: Path) -> Report[InspectStats]:
     report: Report[InspectStats] = Report(command="inspect", inputs=[str(path)])
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
+    no_leaves = _no_leaves(scene, path)
+    if no_leaves is not None:
+        report.warnings.append(no_leaves)
     protos: list[InspectPrototypeStats] = []
     for i, p in enumerate(scene.prototypes):
         leaf_tris = sum(len(m.triangles) for m in p.meshes if m.is_leaf)

@@ -16,6 +16,7 @@ import numpy as np
 from pxr import Usd, UsdGeom
 
 from foliage_tools.geometry.leaves import DEGENERATE_AREA, triangle_area_normals
+from foliage_tools.scene.usd_diagnostics import relative_paths
 
 #: Scales a transform may apply (singular values of its linear part). Below, the
 #: geometry collapses (its inverse, the prototype frame and the sun seen from it do
@@ -45,7 +46,7 @@ def stage_problems(stage: Usd.Stage, path: str) -> Iterator[Problem]:
 def composition_problems(stage: Usd.Stage, path: str) -> Iterator[Problem]:
     """Sublayers or references USD could not load, and sublayer cycles: the bake would see part of the asset."""
     for err in stage.GetCompositionErrors():
-        text = str(err).strip().rstrip(".;")
+        text = relative_paths(str(err).strip().rstrip(".;"), path)  # the missing file as the asset names it
         yield Problem(
             "composition",
             f"@{path}@: {text}. A bake would silently leave that part of the asset out: fix or remove the path in "
@@ -114,9 +115,23 @@ def transform_problem(prim: Usd.Prim, world: np.ndarray, path: str) -> Problem |
     )
 
 
-def mesh_is_empty(points, counts, indices) -> bool:
-    """A mesh without points or faces (any of the three unauthored or empty): the readers skip it."""
-    return points is None or counts is None or indices is None or len(points) == 0 or len(counts) == 0
+def mesh_lacks(points, counts, indices) -> str | None:
+    """What a mesh lacks, e.g. "2 face(s) but no points (points is empty)", or None when it has points and faces.
+
+    The readers skip a mesh that lacks any of points, faceVertexCounts and faceVertexIndices, whether the
+    attribute is unauthored or an empty array: both hold nothing to triangulate.
+    """
+    arrays = {"points": points, "faceVertexCounts": counts, "faceVertexIndices": indices}
+    missing = [name for name, values in arrays.items() if values is None or len(values) == 0]
+    if not missing:
+        return None
+    has = [f"{len(values)} {noun}" for name, values, noun in
+           (("points", points, "point(s)"), ("faceVertexCounts", counts, "face(s)")) if name not in missing]
+    lacks = [noun for name, noun in (("points", "points"), ("faceVertexCounts", "faces")) if name in missing]
+    if "faceVertexIndices" in missing and "faceVertexCounts" not in missing:  # (a mesh without faces has none)
+        lacks.append("face vertex indices")
+    why = ", ".join(f"{name} is {'not authored' if arrays[name] is None else 'empty'}" for name in missing)
+    return f"{' and '.join(has) + ' but ' if has else ''}no {' and no '.join(lacks)} ({why})"
 
 
 #: Per-instance lists of a PointInstancer that must be as long as protoIndices when authored (USD computes no

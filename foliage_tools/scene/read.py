@@ -18,7 +18,7 @@ from typing import cast
 import numpy as np
 
 from foliage_tools.errors import InputError
-from foliage_tools.scene import bakeable
+from foliage_tools.scene import bakeable, usd_diagnostics
 from foliage_tools.geometry.leaves import face_values_from_triangles, leaf_components, triangulate
 from foliage_tools.scene.model import Instance, Leaves, Light, MeshPart, Prototype, Scene
 from foliage_tools.scene.schemas import LEAF_API, register
@@ -28,6 +28,10 @@ register()
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade  # noqa: E402  (schemas must be registered first)
 
 LEAF_NAME = re.compile(r"leaf|leaves|foliage|needle", re.IGNORECASE)
+_WORDS = LEAF_NAME.pattern.split("|")
+#: What makes a mesh a leaf mesh (:func:`classify_leaf`), in words for messages.
+LEAF_MESH_RULE = (f"FoliageLeafAPI, primvars:foliage:isLeaf = true, or a name (or bound material's name) containing "
+                  f"{', '.join(_WORDS[:-1])} or {_WORDS[-1]}")
 SKIPPED_PURPOSES = (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)
 
 
@@ -44,17 +48,23 @@ def open_stage(path: str | os.PathLike) -> Usd.Stage:
         raise InputError(f"@{p}@ is empty (0 bytes): an export or copy that did not finish? Export the asset again.")
     if not Sdf.FileFormat.FindByExtension(p.suffix.lstrip(".") or "none"):
         raise InputError(f"@{p}@: not a USD file (extension {p.suffix or 'none'!r}); give a .usd, .usda, .usdc or .usdz file.")
+    # USD's own warnings (an unloadable sublayer or reference, with absolute paths) are logged, not printed: the
+    # composition errors they repeat are reported in our words (bakeable.composition_problems, validate)
+    covered: list[str] = []
     try:
-        stage = Usd.Stage.Open(str(p), Usd.Stage.LoadAll)
+        with usd_diagnostics.captured(covered):
+            stage = Usd.Stage.Open(str(p), Usd.Stage.LoadAll)
+            if stage is not None:
+                covered.extend(str(e) for e in stage.GetCompositionErrors())
     except Tf.ErrorException as exc:
         syntax = syntax_error(exc)
         if syntax is not None:
             file, line, column, what = syntax
-            where = "" if Path(file).resolve() == p.resolve() else f" (in @{file}@)"
+            where = "" if Path(file).resolve() == p.resolve() else usd_diagnostics.relative_paths(f" (in @{file}@)", p)
             raise InputError(f"@{p}@, line {line}, column {column}{where}: not valid USD text: {what}. Fix the file "
                              "at that place (or export the asset again) and run the command again.") from None
-        first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unknown error"
-        raise InputError(f"@{p}@: cannot be opened as USD ({first}). Is it a valid USD file?") from None
+        raise InputError(f"@{p}@: cannot be opened as USD ({usd_diagnostics.open_failure(exc, p)}). Is it a valid USD "
+                         "file?") from None
     if stage is None:
         raise InputError(f"@{p}@: cannot be opened as USD. Is it a valid USD file?")
     return stage
@@ -65,12 +75,14 @@ _SYNTAX_AT = re.compile(r"^(?P<file>.+?):(?P<line>\d+):(?P<column>\d+): (?P<what
 
 
 def syntax_error(exc: Tf.ErrorException) -> tuple[str, int, int, str] | None:
-    """(file, line, column, message) of the .usda syntax error among the errors of a failed open, else None."""
+    """(file, line, column, message) of the .usda syntax error among the errors of a failed open, else None: where
+    the file needs fixing (:func:`usd_diagnostics.place_unclosed`), 1-based as editors count."""
     for error in exc.args:
         found = _SYNTAX_AT.match(str(getattr(error, "commentary", "")).strip())
         if found:
             what = " ".join(found["what"].split()).rstrip(".")
-            return found["file"], int(found["line"]), int(found["column"]), what
+            line, column, what = usd_diagnostics.place_unclosed(found["file"], int(found["line"]), int(found["column"]), what)
+            return found["file"], line, column, usd_diagnostics.without_cxx_names(what)
     return None
 
 
@@ -128,8 +140,9 @@ class _Reader:
         pts = mesh.GetPointsAttr().Get()
         counts = mesh.GetFaceVertexCountsAttr().Get()
         idx = mesh.GetFaceVertexIndicesAttr().Get()
-        if bakeable.mesh_is_empty(pts, counts, idx):
-            self.warnings.append(f"{self.path}: mesh <{prim.GetPath()}> has no points or faces; skipped.")
+        lacks = bakeable.mesh_lacks(pts, counts, idx)
+        if lacks is not None:
+            self.warnings.append(f"{self.path}: mesh <{prim.GetPath()}> has {lacks}; skipped.")
             return None
         points = np.asarray(pts, dtype=np.float64)
         if not np.all(np.isfinite(points)):
@@ -170,8 +183,12 @@ class _Reader:
                     it.PruneChildren()
                     continue
                 if prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer):
+                    # below the prototype's own path (a native prototype's: its first instance's), not USD's </__Prototype_N>
+                    at = path + str(prim.GetPath())[len(str(root.GetPath())):]
                     self.warnings.append(
-                        f"{self.path}: nested instancing at <{prim.GetPath()}> inside prototype <{root.GetPath()}> is not read."
+                        f"{self.path}: prototype <{path}> is itself a point instancer; its instances are not read."
+                        if prim == root else
+                        f"{self.path}: nested instancing at <{at}> inside prototype <{path}> is not read."
                     )
                     it.PruneChildren()
                     continue

@@ -15,7 +15,7 @@ import numpy as np
 
 from foliage_tools.errors import InputError
 from foliage_tools.geometry.leaves import DEGENERATE_AREA, triangle_area_normals, triangulate
-from foliage_tools.scene import bakeable
+from foliage_tools.scene import bakeable, usd_diagnostics
 from foliage_tools.scene.integrity import check_layers, pending_for, record_of
 from foliage_tools.scene.read import _is_skipped, classify_leaf, open_stage
 from foliage_tools.scene.schemas import register
@@ -76,7 +76,19 @@ def _meshes(stage: Usd.Stage) -> Iterator[Usd.Prim]:
             yield prim
 
 
-@rule("leaf-meshes-found", "The stage holds at least one leaf mesh (DESIGN.md leaf rule).")
+def _mesh_arrays(prim: Usd.Prim) -> tuple:
+    """A mesh's points, faceVertexCounts and faceVertexIndices as authored (None when not)."""
+    mesh = UsdGeom.Mesh(prim)
+    return mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get(), mesh.GetFaceVertexIndicesAttr().Get()
+
+
+def _is_empty(prim: Usd.Prim) -> bool:
+    """A mesh the readers skip for lack of points or faces (:func:`bakeable.mesh_lacks`)."""
+    return bakeable.mesh_lacks(*_mesh_arrays(prim)) is not None
+
+
+@rule("leaf-meshes-found", "The stage holds at least one leaf mesh (DESIGN.md leaf rule) that the bakes read: visible, "
+      "with points and faces.")
 def _leaf_meshes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     meshes = list(_meshes(stage))
     if not meshes:
@@ -90,7 +102,8 @@ def _leaf_meshes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         )
     else:
         read = {p.GetPath() for p in _bakeable_prims(stage) if p.IsA(UsdGeom.Mesh)}
-        if not any(classify_leaf(m)[0] for m in meshes if m.GetPath() in read):  # as scene.read sees the stage
+        leaves = [m for m in meshes if m.GetPath() in read and classify_leaf(m)[0]]  # as scene.read sees the stage
+        if not leaves:
             hidden = ", ".join(f"<{m.GetPath()}>" for m in meshes if classify_leaf(m)[0])
             yield Finding(
                 ERROR,
@@ -98,21 +111,27 @@ def _leaf_meshes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
                 f"@{path}@: its leaf meshes ({hidden}) are all invisible or of guide/proxy purpose, which bakes leave "
                 "out, so no bake finds a leaf. Make them visible with the default (or render) purpose.",
             )
+        elif all(_is_empty(m) for m in leaves):
+            empty = ", ".join(f"<{m.GetPath()}>" for m in leaves)
+            yield Finding(
+                ERROR,
+                "leaf-meshes-found",
+                f"@{path}@: its leaf meshes ({empty}) all lack points or faces, which bakes skip, so no bake finds a "
+                "leaf. Give them their geometry (the empty-meshes warnings say what each lacks).",
+            )
 
 
 @rule("finite-geometry", "Mesh points are finite and faces index valid points.")
 def _finite(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     for prim in _meshes(stage):
-        mesh = UsdGeom.Mesh(prim)
-        pts = mesh.GetPointsAttr().Get()
-        if pts is None:
-            continue
+        pts, counts, idx = _mesh_arrays(prim)
+        if bakeable.mesh_lacks(pts, counts, idx) is not None:
+            continue  # the readers skip it: the empty-meshes rule's warning
         p = np.asarray(pts, dtype=np.float64)
-        bad = int(np.count_nonzero(~np.isfinite(p).all(axis=1))) if p.size else 0
+        bad = int(np.count_nonzero(~np.isfinite(p).all(axis=1)))
         if bad:
             yield Finding(ERROR, "finite-geometry", f"<{prim.GetPath()}> has {bad} point(s) with NaN or infinite coordinates.", str(prim.GetPath()))
-        counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
-        idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
+        counts, idx = np.asarray(counts, dtype=np.int64), np.asarray(idx, dtype=np.int64)
         broken = bakeable.topology_problem(str(prim.GetPath()), p.shape[0], counts, idx)
         if broken:
             yield Finding(ERROR, "finite-geometry", broken, str(prim.GetPath()))
@@ -172,16 +191,23 @@ def _nested_instancing(stage: Usd.Stage, path: str) -> Iterator[Finding]:
             root = stage.GetPrimAtPath(target)
             if not root:
                 continue  # the instancers rule reports it
-            it = iter(Usd.PrimRange(root))
-            next(it)  # the prototype's root may itself be an instance (read through it)
+            # as scene.read reads a prototype: an instanceable root is read through its USD prototype (still one
+            # level, so seen through here as instance proxies); a point instancer, at the root or below, and an
+            # instance below the root are a second level
+            it = iter(Usd.PrimRange(root, Usd.TraverseInstanceProxies()))
             for inner in it:
                 if _is_skipped(inner):
                     it.PruneChildren()
-                elif inner.IsInstance() or inner.IsA(UsdGeom.PointInstancer):
-                    yield Finding(WARNING, "nested-instancing",
-                                  f"<{inner.GetPath()}> instances geometry inside prototype <{root.GetPath()}> of point "
-                                  f"instancer <{prim.GetPath()}>; the bakes read one level of instancing and leave it "
-                                  "out. Flatten it into the prototype (or into the outer instancer).", str(inner.GetPath()))
+                elif inner.IsA(UsdGeom.PointInstancer) or (inner.IsInstance() and inner != root):
+                    if inner == root:
+                        what = (f"prototype <{root.GetPath()}> of point instancer <{prim.GetPath()}> is itself a point "
+                                "instancer; the bakes read one level of instancing and leave its instances out. Flatten "
+                                "them into the prototype (or into the outer instancer).")
+                    else:
+                        what = (f"<{inner.GetPath()}> instances geometry inside prototype <{root.GetPath()}> of point "
+                                f"instancer <{prim.GetPath()}>; the bakes read one level of instancing and leave it out. "
+                                "Flatten it into the prototype (or into the outer instancer).")
+                    yield Finding(WARNING, "nested-instancing", f"@{path}@: {what}", str(inner.GetPath()))
                     it.PruneChildren()
 
 
@@ -190,12 +216,11 @@ def _empty_meshes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     for prim in _bakeable_prims(stage):
         if not prim.IsA(UsdGeom.Mesh):
             continue
-        mesh = UsdGeom.Mesh(prim)
-        if bakeable.mesh_is_empty(mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get(),
-                                  mesh.GetFaceVertexIndicesAttr().Get()):
+        lacks = bakeable.mesh_lacks(*_mesh_arrays(prim))
+        if lacks is not None:
             what = "leaf " if classify_leaf(prim)[0] else ""
-            yield Finding(WARNING, "empty-meshes", f"{what}mesh <{prim.GetPath()}> has no points or faces; the bakes skip "
-                          "it. Give it its geometry, or remove it.", str(prim.GetPath()))
+            yield Finding(WARNING, "empty-meshes", f"@{path}@: {what}mesh <{prim.GetPath()}> has {lacks}; the bakes "
+                          "skip it. Give it its geometry, or remove it.", str(prim.GetPath()))
 
 
 @rule("leaf-area", "Every leaf mesh has some nonzero-area triangle (a mesh of only degenerate ones holds no leaf).")
@@ -256,6 +281,8 @@ def _expected_length(mesh: UsdGeom.Mesh, interpolation: str) -> int | None:
 @rule("primvar-lengths", "Primvar lengths match their interpolation (times elementSize).")
 def _primvar_lengths(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     for prim in _meshes(stage):
+        if _is_empty(prim):
+            continue  # the readers skip it (the empty-meshes rule's warning), and its primvars with it
         mesh = UsdGeom.Mesh(prim)
         for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvarsWithAuthoredValues():
             value = pv.Get()
@@ -359,19 +386,22 @@ def _leaf_optics_attributes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
             )
 
 
-def _usd_findings(stage: Usd.Stage) -> Iterator[Finding]:
+def _usd_findings(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     reg = UsdValidation.ValidationRegistry()
     names = [n for n in USD_VALIDATORS if reg.HasValidator(n)]
     ctx = UsdValidation.ValidationContext(reg.GetOrLoadValidatorsByName(names))
     found = []
-    for err in ctx.Validate(stage):
+    with usd_diagnostics.captured():  # what USD warns validating (an unresolvable dependency) its findings say
+        errors = ctx.Validate(stage)
+    for err in errors:
         if err.HasNoError():
             continue
         sites = [str(s.GetPrim().GetPath()) for s in err.GetSites() if s.IsPrim()]
         severity = ERROR if err.GetType() == UsdValidation.ValidationErrorType.Error else WARNING
         validator = err.GetValidator()
         rule_name = validator.GetMetadata().name if validator else err.GetName()
-        found.append(Finding(severity, rule_name, err.GetMessage(), sites[0] if sites else ""))
+        found.append(Finding(severity, rule_name, usd_diagnostics.relative_paths(err.GetMessage(), path),
+                             sites[0] if sites else ""))
     # USD runs its validators in parallel, so their errors interleave in any order: grouped in USD_VALIDATORS'
     # order (a stable sort keeps each validator's own order), the same stage always reads the same (a CI log's
     # diff, the corpus baselines)
@@ -382,7 +412,7 @@ def _usd_findings(stage: Usd.Stage) -> Iterator[Finding]:
 def validate(path: str | Path) -> list[Finding]:
     """All findings for the stage at ``path`` (raises :class:`InputError` if it cannot be opened)."""
     stage = open_stage(path)
-    findings = list(_usd_findings(stage))
+    findings = list(_usd_findings(stage, str(path)))
     for _, _, fn in RULES:
         findings.extend(fn(stage, str(path)))
     return findings

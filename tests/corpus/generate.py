@@ -403,6 +403,16 @@ def bad_instancer_nested(d: Path) -> None:
     export(stage, d / "instancer_nested.usda")
 
 
+def bad_instancer_prototype_is_instancer(d: Path) -> None:
+    grove = "/World/Forest/Prototypes/Grove"
+    stage, _ = _forest("The PointInstancer's prototype Grove is itself a PointInstancer (nested instancing is not "
+                       "read): only the Tree instances are baked.", [TREE_PROTO, grove], [0, 1])
+    inner = instancer(stage, grove, [f"{grove}/Prototypes/Tree"], [0, 0, 0])
+    inner.GetPositionsAttr().Set(Vt.Vec3fArray([Gf.Vec3f(0.0, 3.0 * i, 0.0) for i in range(3)]))
+    tree(stage, f"{grove}/Prototypes/Tree")
+    export(stage, d / "instancer_prototype_is_instancer.usda")
+
+
 def bad_primvar_length_mismatch(d: Path) -> None:
     stage = minimal("primvars:displayColor is uniform (one per face) but has 3 values for 24 faces.")
     UsdGeom.Mesh(stage.GetPrimAtPath("/Tree/Leaves")).CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(
@@ -442,8 +452,8 @@ BAD: list[Callable[[Path], None]] = [
     bad_face_counts_mismatch, bad_degenerate_leaf_triangles, bad_zero_area_leaves, bad_leaf_mesh_without_points,
     bad_meters_per_unit_zero, bad_no_stage_metadata, bad_zero_scale_transform, bad_sun_zero_scale,
     bad_missing_sublayer, bad_missing_reference, bad_sublayer_cycle, bad_instancer_proto_index_out_of_range,
-    bad_instancer_missing_prototype, bad_instancer_zero_scale, bad_instancer_nested, bad_primvar_length_mismatch,
-    bad_primvar_indices_out_of_range, bad_missing_vdb, bad_leaf_optics_attributes,
+    bad_instancer_missing_prototype, bad_instancer_zero_scale, bad_instancer_nested, bad_instancer_prototype_is_instancer,
+    bad_primvar_length_mismatch, bad_primvar_indices_out_of_range, bad_missing_vdb, bad_leaf_optics_attributes,
 ]
 
 

@@ -27,7 +27,7 @@ BAD = sorted(p.name for p in (CORPUS / "bad").glob("*.usda"))
 #: bad files `foliage inspect` opens (the other three it refuses with validate's message, before reading anything)
 INSPECT_BAD = tuple(n for n in BAD if n not in ("empty_file.usda", "not_usd_text.usda", "syntax_error.usda"))
 #: the files whose validate findings are warnings only: --strict turns them into exit 1
-STRICT_BAD = ("degenerate_leaf_triangles.usda", "instancer_nested.usda", "leaf_mesh_without_points.usda",
+STRICT_BAD = ("degenerate_leaf_triangles.usda", "instancer_nested.usda", "instancer_prototype_is_instancer.usda",
               "leaf_optics_attributes.usda")
 #: known findings (tests/corpus/README.md), pinned so that a fix shows up as a baseline diff: remove the file from
 #: here when its baseline changes for the better. A crash (exit 3) of validate and inspect:
@@ -106,6 +106,24 @@ def test_every_bad_file_is_named_in_its_validate_text():
     for name in set(BAD) - set(KNOWN_CRASHES):
         text = baseline_path(name, "validate").read_text()
         assert name in text, f"{name}: validate's text does not name the file"
+
+
+#: foliage rules whose findings open with the file, as the rules built on scene.bakeable do (transforms, ...)
+NAMES_THE_FILE = ("instancers", "nested-instancing", "empty-meshes", "leaf-meshes-found", "transforms", "stage-units",
+                  "leaf-area")
+
+
+def test_findings_of_the_foliage_rules_name_the_file_first():
+    """The independent fact: the file name each validate run was given; a finding of these rules starts with it as
+    @name@ (nested-instancing and empty-meshes named only the prim)."""
+    seen = set()
+    for name in BAD:
+        for line in baseline_path(name, "validate").read_text().splitlines():
+            rule = re.match(r"^(?:error|warning) \[([\w:-]+)\] ", line)
+            if rule and rule[1] in NAMES_THE_FILE:
+                seen.add(rule[1])
+                assert line[rule.end():].startswith(f"@{name}@"), line
+    assert {"instancers", "nested-instancing", "empty-meshes"} <= seen, seen
 
 
 def test_no_baseline_is_left_over():
