@@ -150,6 +150,7 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
             copied = write_portable_input(path, commit.staging, report.warnings)
             source = copied[-1]
         stages = _run_stages(source, commit.staging, params, progress, stem=Path(path).stem, ext=ext)
+        _name_the_input(stages, commit.staging, path)
         moved = _commit(path, outdir, commit, portable_input=source if params.portable else None)
     except BaseException:
         commit.discard()
@@ -174,6 +175,15 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
         "direct": stages["smax"].stats["direct"],
     }
     return report.finish()
+
+
+def _name_the_input(stages: dict[str, Report], staging: Path, path: Path) -> None:
+    """Each stage reads the layer the stage before wrote in the staging folder, so a warning about the input's
+    content named that temporary layer (``out/.x.bake.tmp-PID-TOKEN/x.density.usda: mesh ...``), differently in
+    each stage, and was repeated once per stage: it names the input instead, so the stages' copies merge."""
+    layer = re.compile(re.escape(str(staging)) + r"/[^\s:@'\"]+")
+    for r in stages.values():
+        r.warnings = [layer.sub(str(path), w) for w in r.warnings]
 
 
 def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, *, stem: str,

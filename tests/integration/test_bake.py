@@ -216,3 +216,38 @@ def test_bake_says_which_config_keys_do_not_reach_its_stages(tmp_path):
     assert_typed_stats(report)
     for name, stage in report["stats"]["stages"].items():  # each stage's stats as its own command prints them
         assert_typed_stats({"command": name, "stats": stage["stats"]})
+
+
+def test_a_warning_about_the_input_names_the_input_once_not_each_stages_temporary_layer(tmp_path):
+    """Each stage reads the layer the stage before wrote in the staging folder: a warning about the input's content
+    (here a mesh with faces but no face vertex indices, which every stage skips) names the input file, once, with
+    the stages that gave it, and no temporary layer (``.NAME.bake.tmp-PID-TOKEN/...``) is named."""
+    src = tmp_path / "card.usda"
+    src.write_text("""#usda 1.0
+(
+    defaultPrim = "Tree"
+    metersPerUnit = 1
+    upAxis = "Z"
+)
+def Xform "Tree" (kind = "component")
+{
+    def Mesh "Broken"
+    {
+        point3f[] points = [(0, 0, 1), (0.1, 0, 1), (0.1, 0.1, 1)]
+        int[] faceVertexCounts = [3]
+        int[] faceVertexIndices = []
+    }
+    def Mesh "leaf"
+    {
+        point3f[] points = [(0, 0, 1), (0.1, 0, 1), (0.1, 0.1, 1), (0, 0.1, 1)]
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+    }
+}
+""")
+    r = foliage("bake", src, "-o", tmp_path / "out", "--resolution", "8", "--direct-samples", "8", "--json")
+    assert r.returncode == 0, r.stderr
+    warnings = json.loads(r.stdout)["warnings"]
+    broken = [w for w in warnings if "</Tree/Broken>" in w]
+    assert len(broken) == 1 and str(src) in broken[0], warnings
+    assert not any(".tmp-" in w for w in warnings), warnings
