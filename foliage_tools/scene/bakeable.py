@@ -8,6 +8,8 @@ Messages use USD's notation: prim paths in ``<...>``, asset paths in ``@...@``.
 
 from __future__ import annotations
 
+import re
+
 import math
 from dataclasses import dataclass
 from typing import Iterator
@@ -46,7 +48,8 @@ def stage_problems(stage: Usd.Stage, path: str) -> Iterator[Problem]:
 def composition_problems(stage: Usd.Stage, path: str) -> Iterator[Problem]:
     """Sublayers or references USD could not load, and sublayer cycles: the bake would see part of the asset."""
     for err in stage.GetCompositionErrors():
-        text = relative_paths(str(err).strip().rstrip(".;"), path)  # the missing file as the asset names it
+        # the missing file as the asset names it; USD's "; skipping." would contradict the refusal that follows
+        text = relative_paths(re.sub(r";\s*skipping\.?\s*$", "", str(err).strip()).rstrip(".;"), path)
         yield Problem(
             "composition",
             f"@{path}@: {text}. A bake would silently leave that part of the asset out: fix or remove the path in "

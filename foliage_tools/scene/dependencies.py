@@ -17,6 +17,8 @@ register()  # before the first layer is opened (DESIGN.md section 5)
 
 from pxr import Sdf, UsdUtils  # noqa: E402
 
+from foliage_tools.scene.usd_diagnostics import captured  # noqa: E402
+
 
 def dependencies(path: Path) -> tuple[frozenset[Path], tuple[str, ...]]:
     """Every file the stage at ``path`` reads (resolved, absolute; ``path`` itself included), and the asset
@@ -27,7 +29,9 @@ def dependencies(path: Path) -> tuple[frozenset[Path], tuple[str, ...]]:
     """
     path = Path(path).resolve()
     try:
-        layers, assets, unresolved = UsdUtils.ComputeAllDependencies(Sdf.AssetPath(str(path)))
+        # a missing sublayer or reference is the reader's to report, in its words: USD's own warnings go to the log
+        with captured():
+            layers, assets, unresolved = UsdUtils.ComputeAllDependencies(Sdf.AssetPath(str(path)))
     except Exception:
         return frozenset({path}), ()
     files = {Path(layer.realPath).resolve() for layer in layers if layer.realPath}

@@ -49,13 +49,16 @@ _QUOTED_ABSOLUTE = re.compile(r"(?P<q>[@'])(?P<path>/[^@'\n]*)(?P=q)")
 
 def relative_paths(text: str, asset: str | os.PathLike) -> str:
     """``text`` with the absolute paths USD quotes in it (``@...@``, ``'...'``) made relative to ``asset``'s
-    folder (``./x.usda``, ``../y.usda``), as the asset names them. A quoted path whose folder is not on disk (a
-    prim path in quotes, say) and one sharing no folder with the asset stay as they are."""
+    folder (``./x.usda``, ``../y.usda``), as the asset names them. A quoted path is taken for a file when its
+    folder is on disk or its name has an extension (a missing reference's folder may be missing too; a prim
+    name has no dot); others (a prim path in quotes, say) and one sharing no folder with the asset stay as they
+    are."""
     folder = os.path.dirname(os.path.abspath(asset))
 
     def relative(m: re.Match) -> str:
         path = m["path"]
-        if not os.path.isdir(os.path.dirname(path)) or os.path.commonpath([folder, path]) == os.path.sep:
+        is_file = os.path.isdir(os.path.dirname(path)) or "." in os.path.basename(path)
+        if not is_file or os.path.commonpath([folder, path]) == os.path.sep:
             return m[0]
         rel = os.path.relpath(path, folder)
         return f"{m['q']}{rel if rel.startswith('..') else './' + rel}{m['q']}"

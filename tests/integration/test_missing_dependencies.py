@@ -9,7 +9,9 @@ import pytest
 from tests.conftest import cards_mesh, write_mesh_stage
 from tests.helpers.cli import foliage
 
-MISSING = {"sublayer": "./missing_layer.usda", "reference": "./missing_branch.usda"}
+MISSING = {"sublayer": "./missing_layer.usda", "reference": "./missing_branch.usda",
+           # a reference into a folder that is missing too (its path was once left absolute)
+           "reference-elsewhere": "../elsewhere/missing_branch.usda"}
 
 
 def _asset(folder, kind: str):
@@ -51,7 +53,8 @@ def test_a_missing_dependency_is_reported_once_relative_to_the_asset(tmp_path, k
         assert leak not in text, text
     if command == "validate":
         assert r.stderr == "" and "[usdValidation:CompositionErrorTest]" in r.stdout, r.stdout + r.stderr
-    else:  # the one error, naming the asset
+    else:  # the one error, naming the asset (without USD's "; skipping.": the asset is refused)
+        assert "skipping" not in r.stderr, r.stderr
         assert r.stderr.startswith("error: @assets/tree.usda@: ") and r.stderr.count("\n") == 1, r.stderr
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
