@@ -427,19 +427,22 @@ def lb_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out:
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:scattered", e_scattered, type="color3f")
         edits.attributes += baked_sun_attribute(scene, bake.index, "lb", sun.direction)
         if not r.converged:  # DESIGN.md section 3: a bake that failed its own accuracy check exits 1
-            fixes = ["raise --max-sweeps" if r.iterations >= params.max_sweeps else None,
-                     "loosen --tolerance (float32 fields rarely get below ~1e-7)" if params.tolerance < 1e-7
-                     else "loosen --tolerance",
+            floor = "fp16 storage rarely gets below ~1e-6" if params.storage == "fp16" else "float32 fields rarely get below ~1e-7"
+            why = (f"its residual stopped falling (round-off: {floor})" if r.stalled
+                   else "it ran out of sweeps (--max-sweeps)")
+            fixes = [None if r.stalled else "raise --max-sweeps",
+                     "loosen --tolerance",
                      None if "bicgstab" in r.solver or params.storage == "fp16" else "try --solver bicgstab"]
             wanted = [x for x in fixes if x]
             report.findings.append(
                 f"prototype <{proto.path}>: LB stopped after {int(r.iterations)} sweep(s) ({r.solver}) at residual "
-                f"{r.residual:.2e}, above --tolerance {params.tolerance:g}. The layer was written with that residual in "
-                f"its metadata; {', '.join(wanted[:-1]) + ' or ' + wanted[-1] if len(wanted) > 1 else wanted[0]}."
+                f"{r.residual:.2e}, above --tolerance {params.tolerance:g}: {why}. The layer was written with that "
+                f"residual in its metadata; {', '.join(wanted[:-1]) + ' or ' + wanted[-1] if len(wanted) > 1 else wanted[0]}."
             )
         proto_stats: LBPrototypeStats = {
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
+            "stalled": bool(r.stalled),
             "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source, "storage": params.storage,
             "grid_precision": params.grid_precision,
             "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": e_scattered.mean(axis=0).tolist(),

@@ -83,6 +83,7 @@ class LBPrototypeStats(TypedDict):
     iterations: int
     residual: float
     converged: bool
+    stalled: bool
     mlups: float
     seconds: float
     density: str

@@ -218,6 +218,9 @@ class LBResult:
     """(K, C) float64: density leaving the grid per sweep."""
     absorbed: np.ndarray
     """(K, C) float64: density absorbed (moved to f_0 and removed) per sweep; inflow = outflow + absorbed at steady state."""
+    stalled: bool = False
+    """The solve stopped because its residual stopped falling (round-off: float32's ~1e-8, fp16 storage's ~1e-6;
+    ``solvers.STALL_SWEEPS``), not at the tolerance or at ``max_sweeps``."""
     history: tuple[float, ...] = field(default=(), repr=False)
     """Max relative residual at each check of plain iteration and after each BiCGSTAB iteration (diagnostics)."""
     beam_direct: np.ndarray | None = field(default=None, repr=False)

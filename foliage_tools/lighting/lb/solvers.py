@@ -34,12 +34,18 @@ STALL_SWEEPS = 128
 STALL_EPS = 1000.0
 
 
-def _stalled(checks: list[tuple[int, float]], t: int, now: float, dtype: np.dtype) -> bool:
+#: Ordered sweeps take a shorter window: each cuts the residual ~10x while converging, so 16 sweeps without a new
+#: low is a stall (fp16 storage: the in-place rounded map settles ~3-6e-6 above the plain one's fixed point, and
+#: ``--solver ordered`` ran 257 sweeps to find that with the plain window).
+STALL_SWEEPS_ORDERED = 16
+
+
+def _stalled(checks: list[tuple[int, float]], t: int, now: float, dtype: np.dtype, window: int = STALL_SWEEPS) -> bool:
     """Whether the measured residuals ``checks`` ((sweep, residual), in order) have stalled at sweep t."""
-    if t < 2 * STALL_SWEEPS or now >= STALL_EPS * float(np.finfo(dtype).eps):
+    if t < 2 * window or now >= STALL_EPS * float(np.finfo(dtype).eps):
         return False
-    recent = [r for k, r in checks if k > t - STALL_SWEEPS]
-    before = [r for k, r in checks if t - 2 * STALL_SWEEPS < k <= t - STALL_SWEEPS]
+    recent = [r for k, r in checks if k > t - window]
+    before = [r for k, r in checks if t - 2 * window < k <= t - window]
     return bool(recent and before and min(recent) >= min(before))
 
 
@@ -54,6 +60,7 @@ def _iterate(
     *,
     extrapolate: bool = False,
     warmup: int | None = None,
+    stalls: list[int] | None = None,
 ):
     """Plain sweeps from f, residual measured every ``every`` sweeps.
 
@@ -103,6 +110,8 @@ def _iterate(
             return f, t, res, False
         if _stalled(checks, t, now, op.dtype):
             log.info("lb solve: the residual has stalled at %.2e (round-off) after %d sweeps; stopping", now, t)
+            if stalls is not None:
+                stalls.append(t)
             return f, t, res, False
         if every_sweep:
             if jumped is not None:
@@ -141,7 +150,7 @@ AUTO_ORDERED_SWEEPS = 24
 ORDERED_TOLERANCE_FRACTION = 0.25
 
 
-def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: list):
+def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: list, stalls: list[int] | None = None):
     """In-place ordered sweeps (``kernels_ordered``), forward and backward in turn, each from the second on
     followed by a plain sweep that measures the residual (the same residual as plain iteration's) and is kept
     as the next iterate. Returns (f, sweeps, residuals (C, K)); a sweep of either kind counts as one.
@@ -175,8 +184,10 @@ def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: lis
         if res.max() < tol * ORDERED_TOLERANCE_FRACTION:
             break
         checks.append((n, float(res.max())))
-        if _stalled(checks, n, float(res.max()), op.dtype):
+        if _stalled(checks, n, float(res.max()), op.dtype, STALL_SWEEPS_ORDERED):
             log.info("lb solve: the residual has stalled at %.2e (round-off) after %d sweeps; stopping", res.max(), n)
+            if stalls is not None:
+                stalls.append(n)
             break
     return f, n, res
 
@@ -258,11 +269,13 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
         once = op.energy(f if params.initial == "unscattered" else op.unscattered(problem))
     sweeps = 0
     used: list[str] = []
+    stalls: list[int] = []  # sweeps at which a phase stopped because its residual stalled
     t_loop = time.perf_counter()
     res = np.full((op.C, op.K), np.inf)
     switched = False
     if params.solver == "auto":  # ordered sweeps first: most bakes converge there in a handful (``_ordered``)
         f, sweeps, res = _ordered(op, f, tol, min(AUTO_ORDERED_SWEEPS, params.max_sweeps), history)
+        # (a stall here is not final: auto hands what is left to plain sweeps)
         used.append("ordered")
     if params.solver in ("iterate", "extrapolate") or (params.solver == "auto" and not res.max() < tol
                                                        and sweeps < params.max_sweeps):
@@ -271,11 +284,11 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
         switch = params.switch_sweeps if params.solver == "auto" else None
         extra = params.solver == "extrapolate"
         f, n, res, switched = _iterate(op, f, tol, params.max_sweeps - sweeps, params.check_every, history, switch,
-                                       extrapolate=extra, warmup=0 if sweeps else None)
+                                       extrapolate=extra, warmup=0 if sweeps else None, stalls=stalls)
         sweeps += n
         used.append("extrapolate" if extra else "iterate")
     if params.solver == "ordered":
-        f, sweeps, res = _ordered(op, f, tol, params.max_sweeps, history)
+        f, sweeps, res = _ordered(op, f, tol, params.max_sweeps, history, stalls)
         used.append("ordered")
     krylov = params.solver == "bicgstab"
     if switched:  # auto, and plain iteration is slow
@@ -284,7 +297,8 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
                  float(res.max()), "BiCGSTAB" if krylov else "extrapolated sweeps (BiCGSTAB would not fit or needs fp32)")
         if not krylov:
             f, n, res, _ = _iterate(
-                op, f, tol, params.max_sweeps - sweeps, params.check_every, history, None, extrapolate=True, warmup=0
+                op, f, tol, params.max_sweeps - sweeps, params.check_every, history, None, extrapolate=True, warmup=0,
+                stalls=stalls,
             )
             sweeps += n
             used.append("extrapolate")
@@ -305,7 +319,8 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
             if res.max() < tol:
                 break
         if not np.all(np.isfinite(res)):  # max_sweeps leaves no room for a BiCGSTAB step: plain sweeps
-            f, n, res, _ = _iterate(op, f, tol, max(params.max_sweeps - sweeps, 1), params.check_every, history, None)
+            f, n, res, _ = _iterate(op, f, tol, max(params.max_sweeps - sweeps, 1), params.check_every, history, None,
+                                    stalls=stalls)
             sweeps += n
             used.append("iterate")
     loop_seconds = time.perf_counter() - t_loop
@@ -327,6 +342,7 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
         residual=float(res.max()),
         residuals=res.T.copy(),
         converged=bool(res.max() < tol),
+        stalled=bool(stalls) and not res.max() < tol,
         seconds=time.perf_counter() - t0,
         solver="+".join(used),
         mlups=op.nodes * nrhs * sweeps / max(loop_seconds, 1e-12) / 1e6,
