@@ -254,7 +254,7 @@ def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, ray
             console.print_table(table)
             t = s["seconds_estimate"]
             times = Table(title="estimated seconds (rates measured on a 2-core machine; scale to yours)")
-            for col in ("density", "smax", "spp", "lb", "direct (rays; once per bake)", "reference", "LB peak memory"):
+            for col in ("density", "smax", "spp", "lb", "direct (rays; once per bake)", "reference", "peak memory"):
                 times.add_column(col, justify="right")
             times.add_row(*(f"{t[k]:.3g}" for k in ("density", "smax", "spp", "lb", "direct", "reference")),
                           f"{s['peak_memory_bytes'] / 1e9:.2f} GB")

@@ -208,7 +208,7 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         nodes = int(np.prod(shape))
         # the stand's sun solve (3 right-hand sides) with its beam arrays and exact first order, as a tree's
         forest_bytes = memory_bytes(shape, 3, PLAIN_ITERATION_FIELDS + 0.9)
-        forest = {"nodes": nodes, "seconds_estimate_per_stage": nodes * FOREST_S_PER_NODE, "memory_bytes": forest_bytes}
+        forest = {"nodes": nodes, "seconds_estimate_per_stage": nodes * FOREST_S_PER_NODE, "memory_bytes": round(forest_bytes)}
         peak = max(peak, forest_bytes)
         # smax, spp and lb each scale their instances by it (once per `foliage bake`)
         total_s["forest"] = nodes * FOREST_S_PER_NODE
@@ -229,10 +229,10 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         "resolution": params.resolution, "bases": params.bases, "storage": params.storage, "depth": depth,
         "gather_rays_per_leaf": gather_per_leaf, "gather_rays": int(gather_rays),
         "prototypes": protos, "instances": len(scene.instances), "leaves_total": int(leaves_total),
-        "seconds_estimate": total_s, "peak_memory_bytes": peak, "direct_rays": int(direct_rays),
-        "world_triangles": int(world_tris), "world_memory_bytes": world_bytes, "forest": forest,
+        "seconds_estimate": total_s, "peak_memory_bytes": round(peak), "direct_rays": int(direct_rays),
+        "world_triangles": int(world_tris), "world_memory_bytes": round(world_bytes), "forest": forest,
         "traced": "lone trees" if lone else "every instance", "traced_triangles": int(traced_tris),
-        "reference_memory_bytes": reference_bytes,
+        "reference_memory_bytes": round(reference_bytes),
         "note": "seconds are estimates from rates measured on a 2-core machine (foliage_tools/pipeline/plan.py)",
     }
     return report.finish()

@@ -323,7 +323,7 @@ class PlanPrototypeStats(TypedDict):
 class PlanForestStats(TypedDict):
     nodes: int
     seconds_estimate_per_stage: float
-    memory_bytes: float
+    memory_bytes: int
 
 
 class PlanStats(TypedDict):
@@ -338,14 +338,14 @@ class PlanStats(TypedDict):
     leaves_total: int
     seconds_estimate: dict[str, float]
     """Per stage (density, smax, spp, lb, reference, direct, and forest for a forest)."""
-    peak_memory_bytes: float
+    peak_memory_bytes: int
     direct_rays: int
     world_triangles: int
-    world_memory_bytes: float
+    world_memory_bytes: int
     forest: PlanForestStats | None
     traced: str
     traced_triangles: int
-    reference_memory_bytes: float
+    reference_memory_bytes: int
     note: str
 
 

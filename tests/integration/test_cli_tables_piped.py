@@ -38,5 +38,5 @@ def test_plan_in_a_pipe_prints_rows_and_sentences_whole():
     r = foliage("plan", FOREST, "--resolution", "16")
     assert r.returncode == 0, r.stderr
     _line_with(r.stdout, "/World/Trees/Tree_00", "16", "1500", "GB", "reference")
-    _line_with(r.stdout, "density", "smax", "direct (rays; once per bake)", "LB peak memory")
+    _line_with(r.stdout, "density", "smax", "direct (rays; once per bake)", "peak memory")
     _line_with(r.stdout, "forest: 16 instances", "the reference would hold")
