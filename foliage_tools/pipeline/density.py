@@ -6,6 +6,7 @@ import logging
 import re
 import time
 from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -190,7 +191,15 @@ def vdb_path(out: Path, scene: Scene, index: int) -> Path:
     return out.with_name(f"{out.stem}.{index:02d}_{name}.vdb")
 
 
-def require_leaves(scene: Scene, path: Path) -> None:
+def require_leaves(scene: Scene, path: Path, warnings: Sequence[str] = ()) -> None:
+    """Refuse a scene with no leaves; ``warnings`` (the reader's): skipped meshes are named as the likely cause."""
+    skipped = [w.split(": ", 1)[-1].removesuffix("; skipped.") for w in warnings
+               if w.rstrip().endswith("; skipped.") and " mesh <" in w]
+    if skipped and not any(p.leaves.count for p in scene.prototypes):
+        raise InputError(
+            f"@{path}@: no leaves to bake, and the reader skipped: {'; '.join(skipped[:3])}"
+            f"{' (and more)' if len(skipped) > 3 else ''}. Fix those meshes (`foliage validate` lists every finding)."
+        )
     if not scene.prototypes:
         raise InputError(f"@{path}@ has no mesh geometry to bake; is it a tree asset?")
     if not any(p.leaves.count for p in scene.prototypes):
@@ -227,7 +236,7 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
     progress.step(f"reading {path}")
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
-    require_leaves(scene, path)
+    require_leaves(scene, path, warnings)
     edits = LayerEdits(primvars=leaf_id_edits(scene, report.warnings))
     protos: list[DensityPrototypeStats] = []
     baked = scene.leafy_prototypes()

@@ -72,6 +72,9 @@ def test_a_lone_empty_leaf_mesh_is_an_error_as_every_bake_refuses_the_asset(tmp_
     path = _tree(tmp_path / "tree.usda", "points", None, leaf=True)
     bake = foliage("density", path, "-o", tmp_path / "d.usda")
     assert bake.returncode == 2, bake.stderr
+    # and the refusal names the skipped mesh and what it lacks, not "mark your leaf meshes" (it is marked)
+    assert "</Tree/Twig>" in bake.stderr and "no points" in bake.stderr, bake.stderr
+    assert "FoliageLeafAPI" not in bake.stderr, bake.stderr
     r = foliage("validate", path.name, "--json", cwd=tmp_path)
     assert r.returncode == 1, r.stdout
     rules = {(f["severity"], f["rule"]) for f in json.loads(r.stdout)["stats"]["findings"]}
