@@ -193,8 +193,7 @@ def vdb_path(out: Path, scene: Scene, index: int) -> Path:
 
 def require_leaves(scene: Scene, path: Path, warnings: Sequence[str] = ()) -> None:
     """Refuse a scene with no leaves; ``warnings`` (the reader's): skipped meshes are named as the likely cause."""
-    skipped = [w.split(": ", 1)[-1].removesuffix("; skipped.") for w in warnings
-               if w.rstrip().endswith("; skipped.") and " mesh <" in w]
+    skipped = [w.split(": ", 1)[-1].split("; skipped")[0] for w in warnings if "; skipped" in w and " mesh <" in w]
     if skipped and not any(p.leaves.count for p in scene.prototypes):
         raise InputError(
             f"@{path}@: no leaves to bake, and the reader skipped: {'; '.join(skipped[:3])}"

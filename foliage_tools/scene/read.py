@@ -142,7 +142,8 @@ class _Reader:
         idx = mesh.GetFaceVertexIndicesAttr().Get()
         lacks = bakeable.mesh_lacks(pts, counts, idx)
         if lacks is not None:
-            self.warnings.append(f"{self.path}: mesh <{prim.GetPath()}> has {lacks}; skipped.")
+            self.warnings.append(f"@{self.path}@: mesh <{prim.GetPath()}> has {lacks}; skipped: give it points, face "
+                                 "counts and face vertex indices, or remove it.")
             return None
         points = np.asarray(pts, dtype=np.float64)
         if not np.all(np.isfinite(points)):
@@ -186,9 +187,10 @@ class _Reader:
                     # below the prototype's own path (a native prototype's: its first instance's), not USD's </__Prototype_N>
                     at = path + str(prim.GetPath())[len(str(root.GetPath())):]
                     self.warnings.append(
-                        f"{self.path}: prototype <{path}> is itself a point instancer; its instances are not read."
-                        if prim == root else
-                        f"{self.path}: nested instancing at <{at}> inside prototype <{path}> is not read."
+                        (f"@{self.path}@: prototype <{path}> is itself a point instancer; its instances are not read"
+                         if prim == root else
+                         f"@{self.path}@: nested instancing at <{at}> inside prototype <{path}> is not read")
+                        + ": place those instances from the outer instancer, or make them plain (non-instanced) prims."
                     )
                     it.PruneChildren()
                     continue
@@ -287,7 +289,8 @@ class _Reader:
         )
         proto_indices = pi.GetProtoIndicesAttr().Get(t)
         if proto_indices is None or xforms is None:
-            self.warnings.append(f"{self.path}: point instancer <{prim.GetPath()}> has no protoIndices; skipped.")
+            self.warnings.append(f"@{self.path}@: point instancer <{prim.GetPath()}> has no protoIndices; skipped: "
+                                 "author protoIndices, one prototype index per instance.")
             return
         proto_indices = np.asarray(proto_indices, dtype=np.int64)
         self.instancer_sizes[str(prim.GetPath())] = int(proto_indices.size)
