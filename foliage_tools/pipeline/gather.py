@@ -21,7 +21,7 @@ from foliage_tools.pipeline.direct import within_budget
 from foliage_tools.pipeline.instances import from_prototypes
 from foliage_tools.pipeline.report import Progress
 from foliage_tools.pipeline.stats import GatherStats
-from foliage_tools.pipeline.world import World, bake_world, prototype_means, traced_parts
+from foliage_tools.pipeline.world import World, bake_world, lone_parts, prototype_means, traced_parts
 from foliage_tools.scene.model import Scene
 
 log = logging.getLogger(__name__)
@@ -95,10 +95,15 @@ def bake_gather(scene: Scene, sun: Sun, optics: LeafOptics, rest: dict[int, np.n
     n = int(world.offsets[-1])
     per_leaf = np.maximum(from_prototypes(world, rest), 0.0)
     alone = " (each prototype alone: the forest lattice adds the stand's light)" if world.lone else ""
-    progress.step(f"final gather: {rays} rays per leaf over {n:,} leaves{alone}")
-    parts = [gather.solve(gather.GatherInputs(tris, ids, count, optics, sun.direction, rest=per_leaf[leaves]),
-                          gather.GatherParams(rays_per_leaf=rays, seed=seed))
-             for tris, ids, count, leaves in traced_parts(world) if count or not world.lone]
+    total = sum(1 for _, leaves in lone_parts(world) if leaves.stop > leaves.start or not world.lone)
+    progress.step(f"final gather: {rays} rays per leaf over {n:,} leaves{alone}", total=total)
+    parts = []
+    for tris, ids, count, leaves in traced_parts(world):  # one at a time: each holds its triangles
+        if not (count or not world.lone):
+            continue
+        parts.append(gather.solve(gather.GatherInputs(tris, ids, count, optics, sun.direction, rest=per_leaf[leaves]),
+                                  gather.GatherParams(rays_per_leaf=rays, seed=seed)))
+        progress.advance()  # (also where a batch task re-shares its cores)
     res = parts[0] if len(parts) == 1 else _joined(parts)
     log.info("gather: %d rays per leaf over %s leaves, %.2f s", rays, f"{n:,}", res.seconds)
     counts = [p.leaves.count for p in scene.prototypes]
