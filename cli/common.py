@@ -133,7 +133,8 @@ def _json_error(started: float, code: int, kind: str, message: str, **extra) -> 
     if ctx is None or not ctx.params.get("as_json"):
         return
     scene = ctx.params.get("scene")
-    inputs = [str(scene)] if scene is not None else []
+    given = ctx.params.get("inputs")  # batch: INPUTS...
+    inputs = [str(scene)] if scene is not None else [str(i) for i in given] if given else []
     try:
         console.print_json(error_report(ctx.info_name, inputs, time.perf_counter() - started, code, kind, message, **extra))
     except OSError:  # stdout is gone (a closed pipe): the exit code still says it

@@ -270,6 +270,8 @@ def test_inputs_are_found_in_directories_and_manifests_and_bad_ones_are_exit_2(t
     assert r.returncode == 2 and "[[asset]] 1" in r.stderr and "--resolution" in r.stderr
     r = foliage("batch", tmp_path / "nope.usda", "-o", out)
     assert r.returncode == 2 and "nope.usda" in r.stderr
+    r, report = batch(tmp_path / "nope.usda", "-o", out)  # --json: the refused batch's report names what it was given
+    assert r.returncode == 2 and report["inputs"] == [str(tmp_path / "nope.usda")] and report["error"]["code"] == 2
     assert not (out / "batch.json").exists()  # none of these baked or wrote anything
 
 
