@@ -6,7 +6,6 @@ import logging
 import re
 import time
 from dataclasses import dataclass
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -191,9 +190,9 @@ def vdb_path(out: Path, scene: Scene, index: int) -> Path:
     return out.with_name(f"{out.stem}.{index:02d}_{name}.vdb")
 
 
-def require_leaves(scene: Scene, path: Path, warnings: Sequence[str] = ()) -> None:
-    """Refuse a scene with no leaves; ``warnings`` (the reader's): skipped meshes are named as the likely cause."""
-    skipped = [w.split(": ", 1)[-1].split("; skipped")[0] for w in warnings if "; skipped" in w and " mesh <" in w]
+def require_leaves(scene: Scene, path: Path) -> None:
+    """Refuse a scene with no leaves; meshes the reader skipped as empty are named as the likely cause."""
+    skipped = scene.empty_meshes
     if skipped and not any(p.leaves.count for p in scene.prototypes):
         raise InputError(
             f"@{path}@: no leaves to bake, and the reader skipped: {'; '.join(skipped[:3])}"
@@ -235,7 +234,7 @@ def run_density(path: Path, out: Path, params: DensityParams, *, progress: Progr
     progress.step(f"reading {path}")
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
-    require_leaves(scene, path, warnings)
+    require_leaves(scene, path)
     edits = LayerEdits(primvars=leaf_id_edits(scene, report.warnings))
     protos: list[DensityPrototypeStats] = []
     baked = scene.leafy_prototypes()

@@ -55,7 +55,7 @@ def begin_bake(command: str, path: Path, out: Path | None, sun_flag, progress: P
     progress.step(f"reading {path}")
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
-    require_leaves(scene, path, warnings)
+    require_leaves(scene, path)
     sun = choose_sun(scene.lights, scene.up_axis, sun_flag, report.warnings)
     require_sun_above_horizon(path, scene, sun)
     return report, scene, sun

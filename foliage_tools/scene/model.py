@@ -142,6 +142,8 @@ class Scene:
     instancer_sizes: dict = field(default_factory=dict)
     """Point instancer path -> its number of instances (len(protoIndices), masked ones included): the length
     of a per-instance primvar on it."""
+    empty_meshes: tuple[str, ...] = ()
+    """The meshes the reader skipped for lacking points or faces, each with what it lacks (``mesh <...> has ...``)."""
 
     @property
     def up(self) -> np.ndarray:

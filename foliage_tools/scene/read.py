@@ -133,6 +133,7 @@ class _Reader:
     warnings: list[str] = field(default_factory=list)
     keys: dict[tuple[str, str], int] = field(default_factory=dict)
     instancer_sizes: dict[str, int] = field(default_factory=dict)
+    empty_meshes: list[str] = field(default_factory=list)
 
     # -- meshes -----------------------------------------------------------
     def read_mesh(self, prim: Usd.Prim, to_proto: np.ndarray, *, editable: bool) -> MeshPart | None:
@@ -142,6 +143,7 @@ class _Reader:
         idx = mesh.GetFaceVertexIndicesAttr().Get()
         lacks = bakeable.mesh_lacks(pts, counts, idx)
         if lacks is not None:
+            self.empty_meshes.append(f"mesh <{prim.GetPath()}> has {lacks}")
             self.warnings.append(f"@{self.path}@: mesh <{prim.GetPath()}> has {lacks}; skipped: give it points, face "
                                  "counts and face vertex indices, or remove it.")
             return None
@@ -268,6 +270,7 @@ class _Reader:
             default_prim=str(dp.GetPath()) if dp else None,
             default_prim_transform=_matrix(self.xf.GetLocalToWorldTransform(dp)) if dp else np.eye(4),
             instancer_sizes=dict(self.instancer_sizes),
+            empty_meshes=tuple(self.empty_meshes),
         )
 
     def native_instance(self, prim: Usd.Prim) -> None:
