@@ -49,6 +49,17 @@ def _stalled(checks: list[tuple[int, float]], t: int, now: float, dtype: np.dtyp
     return bool(recent and before and min(recent) >= min(before))
 
 
+def _stop_stalled(checks: list[tuple[int, float]], t: int, now: float, dtype: np.dtype, stalls: list[int] | None,
+                  window: int = STALL_SWEEPS) -> bool:
+    """``_stalled``, and if so say it and record sweep t in ``stalls``: whether the caller stops."""
+    if not _stalled(checks, t, now, dtype, window):
+        return False
+    log.info("lb solve: the residual has stalled at %.2e (round-off) after %d sweeps; stopping", now, t)
+    if stalls is not None:
+        stalls.append(t)
+    return True
+
+
 def _iterate(
     op: _Operator,
     f: np.ndarray,
@@ -108,10 +119,7 @@ def _iterate(
         checks.append((t, now))
         if now < tol:
             return f, t, res, False
-        if _stalled(checks, t, now, op.dtype):
-            log.info("lb solve: the residual has stalled at %.2e (round-off) after %d sweeps; stopping", now, t)
-            if stalls is not None:
-                stalls.append(t)
+        if _stop_stalled(checks, t, now, op.dtype, stalls):
             return f, t, res, False
         if every_sweep:
             if jumped is not None:
@@ -184,10 +192,7 @@ def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: lis
         if res.max() < tol * ORDERED_TOLERANCE_FRACTION:
             break
         checks.append((n, float(res.max())))
-        if _stalled(checks, n, float(res.max()), op.dtype, STALL_SWEEPS_ORDERED):
-            log.info("lb solve: the residual has stalled at %.2e (round-off) after %d sweeps; stopping", res.max(), n)
-            if stalls is not None:
-                stalls.append(n)
+        if _stop_stalled(checks, n, float(res.max()), op.dtype, stalls, STALL_SWEEPS_ORDERED):
             break
     return f, n, res
 
