@@ -95,11 +95,14 @@ def bake_gather(scene: Scene, sun: Sun, optics: LeafOptics, rest: dict[int, np.n
     n = int(world.offsets[-1])
     per_leaf = np.maximum(from_prototypes(world, rest), 0.0)
     alone = " (each prototype alone: the forest lattice adds the stand's light)" if world.lone else ""
-    total = sum(1 for _, leaves in lone_parts(world) if leaves.stop > leaves.start or not world.lone)
+    def traced(count: int) -> bool:  # a lone tree without leaves has nothing to gather
+        return count > 0 or not world.lone
+
+    total = sum(traced(leaves.stop - leaves.start) for _, leaves in lone_parts(world))
     progress.step(f"final gather: {rays} rays per leaf over {n:,} leaves{alone}", total=total)
     parts = []
     for tris, ids, count, leaves in traced_parts(world):  # one at a time: each holds its triangles
-        if not (count or not world.lone):
+        if not traced(count):
             continue
         parts.append(gather.solve(gather.GatherInputs(tris, ids, count, optics, sun.direction, rest=per_leaf[leaves]),
                                   gather.GatherParams(rays_per_leaf=rays, seed=seed)))
