@@ -197,13 +197,14 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
     from foliage_tools.pipeline.stage import begin_bake
 
     stages = {}
+    # the input as the stages read it, and its sun: the direct rays, the preview's choices and the reference use it
+    _, scene, sun = begin_bake("bake", path, None, params.sun, progress)
     if params.direct.mode == "rays":
         # the exact direct light, traced once for the three stages that write it (the geometry is the input's)
         from dataclasses import replace
 
         from foliage_tools.pipeline.direct import bake_direct
 
-        _, scene, sun = begin_bake("bake", path, None, params.sun, progress)
         params = replace(params, direct=replace(params.direct, precomputed=bake_direct(scene, sun, params.direct, progress)))
     density_out = work / f"{stem}.density.{ext}"
     stages["density"] = _stage("density", run_density, path, density_out, DensityParams(resolution=params.resolution, volume_purpose=params.volume_purpose), progress=progress)
@@ -221,8 +222,6 @@ def _run_stages(path: Path, work: Path, params: BakeParams, progress: Progress, 
     # primvars exist only on editable prototypes (a forest of native instances has none: direct light only)
     from foliage_tools.pipeline.world import traced_alone, world_triangles
 
-    # the input as the stages read it, and its sun (the reference below traces it)
-    _, scene, sun = begin_bake("bake", path, None, params.sun, progress)
     editable = any(p.editable and p.leaves.count for p in scene.prototypes)
     # a forest too large to copy for the rays is also too large to draw in full on a software rasteriser (10 000
     # trees: the sky pass alone ran past 10 minutes): far trees thinned, no sky occlusion, one sample per pixel
