@@ -44,7 +44,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic, overload
 
-__all__ = ["STORAGES", "FP16_SCALE_EXP", "storage_dtype", "to_storage", "from_storage", "load", "convert"]
+__all__ = ["STORAGES", "FP16_SCALE_EXP", "storage_dtype", "to_storage", "from_storage", "load", "convert", "HALF_ROUNDING_VARIANCE"]
 
 #: ``--storage`` choices: what the lattice densities are stored in (arithmetic is float32 either way).
 STORAGES = ("fp32", "fp16")
@@ -53,6 +53,13 @@ STORAGES = ("fp32", "fp16")
 FP16_SCALE_EXP = 8
 _UP = np.float32(2.0**FP16_SCALE_EXP)
 _DOWN = np.float32(2.0**-FP16_SCALE_EXP)
+
+#: Variance of the error of rounding a value to the nearest stored binary16 one, in f's units, indexed by the
+#: binary16 exponent field (bits >> 10 & 31) of the stored value: ulp^2 / 12 with ulp = 2^(max(e, 1) - 25 - S)
+#: (10 fraction bits; e = 0 is subnormal, with the ulp of e = 1), the variance of a uniform error over one ulp
+#: (the standard model of round-to-nearest; ``lighting.lb.solvers`` uses it to tell when an fp16 solve's change
+#: per sweep is no more than its rounding). Entry 31 (inf and NaN) is never reached by a finite field.
+HALF_ROUNDING_VARIANCE = np.array([(2.0 ** (max(e, 1) - 25 - FP16_SCALE_EXP)) ** 2 / 12.0 for e in range(32)])
 
 
 def storage_dtype(storage: str, compute_dtype="float32") -> np.dtype:

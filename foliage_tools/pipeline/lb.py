@@ -46,6 +46,7 @@ from scipy import ndimage
 
 from foliage_tools.lighting import lb, single_scatter
 from foliage_tools.lighting.collision import LATTICES, PHASES, Medium, brown, density_from_lad, leaf_medium
+from foliage_tools.lighting.lattice import UNIT_DIRECTIONS
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.lighting.storage import STORAGES
 from foliage_tools.params import BASE_EXTENTS, DEFAULT_RESOLUTION, GRID_PRECISIONS, DensityParams, check_resolution
@@ -246,6 +247,12 @@ class LBPrototypeBake:
     """Green-node coefficients the lattice was solved with."""
     density_source: str = "computed"
     """Where the leaf-area density came from: ``computed`` or ``input`` (see ``density_for_bake``)."""
+    bases_as_beams: bool = False
+    """The 18 bases were solved as beams along the lattice directions (fp16 storage, ``bake_prototype``)."""
+
+
+def _unit_extinction(medium: Medium) -> bool:
+    return bool(np.allclose(medium.sigma_t, 1.0, rtol=0.0, atol=1e-12))
 
 
 def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: LBBakeParams,
@@ -261,9 +268,19 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
     # (A Kronecker base is a beam along a lattice line, which the ordinates lattice attenuates exactly, so
     # its boundary form already is its first-collision form: see lb.beam_fields.)
     first_collision = params.bases == "sun" and params.sun_source == "first-collision"
+    # fp16: the 18 bases as beams along the lattice directions, so the rounded lattice holds only their scattered
+    # light (as Kronecker inflow it also held the unscattered beam, whose rounding, 2^-11 of the beam, landed on
+    # E_scattered = (u - u_unscattered) / 2 at sunlit leaves: up to 2-5 % there). beam_fields: a beam along c_j is
+    # exactly base_boundary(j)'s scattered light when sigma_t = 1 on the ordinates lattice (tested), which holds
+    # for every leaf and wood medium (collision.leaf_medium: sigma_s = 1 - sigma_a); not on the geist2008 lattice.
+    beam_bases = (params.bases == "all" and params.storage == "fp16" and params.lattice == "ordinates"
+                  and _unit_extinction(medium) and (not mask.any() or _unit_extinction(brown(medium))))
     boundaries: tuple[lb.Boundary, ...]
     if params.bases == "sun":
         boundaries = (lb.sun_source(sun_local) if first_collision else lb.sun_boundary(sun_local, params.sun_split),)
+    elif beam_bases:
+        boundaries = tuple(lb.Boundary(b.name, (0.0,) * 18, beam=tuple(UNIT_DIRECTIONS[k]))
+                           for k, b in enumerate(lb.relighting_boundaries()[1:], start=1))
     else:
         boundaries = lb.relighting_boundaries()[1:]
     problem = lb.LBProblem(density=rho, medium=medium, boundaries=boundaries,
@@ -272,7 +289,8 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
     # + the beam arrays (lb.BeamFields: direct and power in float64, the power again in the run layout): ~0.3 field;
     # + the single-scattering correction's float64 energy, extinction, emission and correction arrays: ~0.6 field
     correct = first_collision and params.single_scatter == "exact"
-    extra = lb.PLAIN_ITERATION_FIELDS - 2.0 + (0.3 if first_collision else 0.0) + (0.6 if correct else 0.0)
+    extra = (lb.PLAIN_ITERATION_FIELDS - 2.0 + (0.3 if first_collision else 0.0) + (0.6 if correct else 0.0)
+             + (lb.BEAM_SOURCE_FIELDS if beam_bases else 0.0))
     nrhs = len(boundaries) * medium.channels
     # the 2 fields of plain iteration in the storage format, the rest (outputs, beams) in float32
     need = lb.memory_bytes(grid.shape, nrhs, 2.0, 2 if params.storage == "fp16" else 4) + lb.memory_bytes(grid.shape, nrhs, extra)
@@ -284,7 +302,8 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
             "Lower --resolution (memory falls with its cube), or use --bases sun (1/18 of --bases all); "
             "`foliage plan` shows the memory before a bake."
         )
-    lbp = lb.LBParams(tolerance=params.tolerance, solver=params.solver, max_sweeps=params.max_sweeps, storage=params.storage)
+    lbp = lb.LBParams(tolerance=params.tolerance, solver=params.solver, max_sweeps=params.max_sweeps, storage=params.storage,
+                      beam_outputs=not beam_bases)
     res = lb.solve(problem, lbp)
     total = res.energy_density
     if correct:
@@ -302,6 +321,8 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
         unscattered = res.beam_direct.astype(np.float32)
     else:
         unscattered = lb.unscattered_energy(problem)  # exact one-pass transport, no lattice iteration
+    if beam_bases:  # the lattice gave the scattered light alone: the bases' own never-scattered light, exactly
+        total += unscattered
     t_un = time.perf_counter() - t_un
     if params.bases == "sun":
         sun_total, sun_un = total[..., 0, :], unscattered[..., 0, :]
@@ -313,7 +334,7 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
     cos = np.abs(proto.leaves.normals @ sun_local)
     e_direct = cos[:, None] * sample_trilinear(sun_un, grid, proto.leaves.centers)
     return LBPrototypeBake(index, grid, total, unscattered, sun_total, sun_un,
-                           e_direct, e_scattered, res, dens.seconds + res.seconds + t_un, medium, dens.source)
+                           e_direct, e_scattered, res, dens.seconds + res.seconds + t_un, medium, dens.source, beam_bases)
 
 
 def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], progress: Progress) -> list[LBPrototypeBake]:
@@ -324,6 +345,13 @@ def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], p
         sun_local = sun_in_prototype(scene, i, sun, warnings)
         dens = density_for_bake(scene, proto, DensityParams(resolution=params.resolution, method="area"), warnings)
         bake = bake_prototype(proto, i, sun_local, params, dens)
+        if params.bases == "all" and params.storage == "fp16" and not bake.bases_as_beams:
+            warnings.append(
+                f"prototype <{proto.path}>: with fp16 storage the bases are solved as beams only on the ordinates "
+                f"lattice with sigma_t = 1; on the {params.lattice} lattice here they are boundary inflow, whose rounding "
+                "puts errors of up to ~5 % on the scattered light of single sunlit leaves (README 'LB storage'). "
+                "Use fp32 storage where single leaves matter."
+            )
         r = bake.result
         log.info("lb <%s>: %s lattice (%s), %s, %d sweeps, residual %.2e%s, %.1f MLUPS, %.2f s", proto.path,
                  "x".join(map(str, bake.grid.shape)), params.bases, r.solver, r.iterations, r.residual,
@@ -442,7 +470,7 @@ def lb_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out:
         proto_stats: LBPrototypeStats = {
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
-            "stalled": bool(r.stalled),
+            "stalled": bool(r.stalled), "storage_floor": r.storage_floor,
             "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source, "storage": params.storage,
             "grid_precision": params.grid_precision,
             "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": e_scattered.mean(axis=0).tolist(),

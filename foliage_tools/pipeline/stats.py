@@ -84,6 +84,8 @@ class LBPrototypeStats(TypedDict):
     residual: float
     converged: bool
     stalled: bool
+    storage_floor: float | None
+    """fp16: the rounding level at which the solve counted as converged above --tolerance (lb.LBResult.storage_floor)."""
     mlups: float
     seconds: float
     density: str

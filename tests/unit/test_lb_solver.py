@@ -782,6 +782,10 @@ def test_beam_along_a_lattice_direction_is_the_kronecker_boundary(k):
     scat_b = rb.energy_density - unscattered_energy(beam, "float64")
     assert scat_k.max() > 0.01
     np.testing.assert_allclose(scat_b, scat_k, rtol=0, atol=1e-10 * scat_k.max())
+    # without the beam outputs (the fp16 relightable bake's bases): the scattered light alone, the beams' arrays gone
+    lean = solve(beam, dataclasses.replace(params, beam_outputs=False))
+    np.testing.assert_allclose(lean.energy_density, scat_k, rtol=0, atol=1e-10 * scat_k.max())
+    assert lean.beam_direct is None and lean.beam_power is None and lean.once_scattered is None
     # the beam's own (unscattered) light is the exact beam at the node centres, half a cell further
     # down the line than the lattice's arriving f_k
     un_k = unscattered_energy(kron, "float64")

@@ -211,10 +211,10 @@ def test_fp16_relightable_bake_is_within_the_rounding_bound_leaf_by_leaf():
     sun = np.array([0.35, 0.2, 0.9]) / np.linalg.norm([0.35, 0.2, 0.9])
     optics = parse_leaf_optics(None)
     dens = compute_density(proto, DensityParams(resolution=16, method="area"))
-    params = LBBakeParams(optics=optics, resolution=16, bases="all", storage="fp16", tolerance=1e-9, max_sweeps=3000)
+    params = LBBakeParams(optics=optics, resolution=16, bases="all", storage="fp16", tolerance=1e-9, max_sweeps=3000,
+                          solver="iterate")
     b16 = bake_prototype(proto, 0, sun, params, dens)
-    # a fixed point of the rounded map (auto: ordered sweeps, then plain ones)
-    assert b16.result.residual == 0.0 and b16.result.solver in ("ordered", "ordered+iterate")
+    assert b16.result.residual == 0.0  # a fixed point of the rounded map
     # the same problem as bake_prototype's, solved in float64
     mask = dens.wood_fraction > 0.5
     med = leaf_medium(optics, absorption_scale=1.0, phase="bilambertian")
@@ -235,7 +235,90 @@ def test_fp16_relightable_bake_is_within_the_rounding_bound_leaf_by_leaf():
                                           b16.grid, leaves), 0.0)
     bound = sample_trilinear(lb.relight(with_ambient(node), sun), b16.grid, leaves) / 2
     assert np.all(np.abs(b16.e_scattered - e_exact) <= bound)
+    # the issue's 0.5 % per leaf, at every leaf: the bases are solved as beams, so the rounded lattice holds only
+    # their scattered light (solved as Kronecker inflow, the rounding of the unscattered beam they also held made
+    # 3.1 % at the worst leaf here)
+    lit = e_exact > 0
+    assert np.max(np.abs(b16.e_scattered - e_exact)[lit] / e_exact[lit]) < 5e-3
+    # auto stops at the storage's rounding level (``solvers._at_storage_floor``) well before the fixed point, and
+    # is as close: its error bound is at most twice the fixed point's (that function's docstring); the 0.5 % too
+    auto = bake_prototype(proto, 0, sun, LBBakeParams(optics=optics, resolution=16, bases="all", storage="fp16"), dens)
+    r = auto.result
+    assert r.solver == "ordered" and r.converged and r.storage_floor is not None and r.residual <= r.storage_floor
+    assert r.iterations < b16.result.iterations
+    assert np.all(np.abs(auto.e_scattered - e_exact) <= 2 * bound)
+    assert np.max(np.abs(auto.e_scattered - e_exact)[lit] / e_exact[lit]) < 5e-3
     # and the float32 storage of the same bake is as close to the float64 solve as its own tolerance allows
     b32 = bake_prototype(proto, 0, sun, LBBakeParams(optics=optics, resolution=16, bases="all", tolerance=1e-7), dens)
     rms = lambda x: float(np.sqrt(((x - e_exact) ** 2).sum() / (e_exact**2).sum()))  # noqa: E731
     assert rms(b16.e_scattered) < 5e-3 and rms(b32.e_scattered) < 5e-3  # the issue's 0.5 %, both
+
+
+@pytest.mark.parametrize("beam", [False, True])
+def test_rounding_level_is_the_rounding_a_sweep_made(beam):
+    """``_Operator.rounding``'s model (ulp^2 / 12 per value a collision rounded) against the rounding itself: the
+    float32 sweep of the same stored state, rounded to binary16, per right-hand side."""
+    rho = sphere(14, 0.4, 0.6)
+    pb = LBProblem(rho, leaf_medium(), (sun_source((0.3, 0.2, 1.0)) if beam else sun_boundary((0.3, 0.2, 1.0)),
+                                        sun_boundary((-0.5, 0.1, 0.8))))
+    o16, o32 = _Operator(pb, "float32", "fp16"), _Operator(pb, "float32", "fp32")
+    f = o16.unscattered(pb)
+    out = o16.zeros()
+    for _ in range(6):  # a few sweeps in: scattered light everywhere
+        out[:] = f
+        o16.sweep(f, out, residual=False)
+        f, out = out, f
+    g = from_storage(f)
+    o32.sweep(from_storage(f), g, residual=False)  # g = T F + b, unrounded (inflow slots: F's, stored exactly)
+    o16.sweep(f, out, residual=False)  # rnd(g), as the fp16 sweep stores it
+    err = (from_storage(out) - g).astype(np.float64)
+    shape = (o16.nx, o16.NB, 18, o16.C, o16.G * o16.nz, o16.K)
+    exact = np.sqrt(o16.reduce((err.reshape(shape) ** 2).sum(axis=(1, 2)))
+                    / o16.reduce((from_storage(out).astype(np.float64).reshape(shape) ** 2).sum(axis=(1, 2))))
+    model = o16.rounding(out)
+    assert np.all(exact > 1e-5)  # a sweep does round (binary16: ~1e-4 of the values it collides)
+    # the model is a statistical one: the mean of a squared error uniform over one ulp, over the ~10^4 values per
+    # rhs a sweep rounds, spreads by ~1.1 / sqrt(10^4) ~ 1 % (relative, halved by the square root): 5 % is 5 of
+    # those; beams add a second rounding at some nodes (the hand loop), which the model does not count
+    np.testing.assert_allclose(model, exact, rtol=0.05)
+
+
+def test_the_storage_floor_needs_a_stopped_descent_and_a_change_within_the_rounding():
+    from foliage_tools.lighting.lb.solvers import _at_storage_floor
+
+    rho = sphere(10, 0.4, 0.6)
+    pb = LBProblem(rho, leaf_medium(), (sun_boundary((0.3, 0.2, 1.0)),))
+    o16 = _Operator(pb, "float32", "fp16")
+    f = o16.unscattered(pb)
+    level = o16.rounding(f)
+    small = 0.5 * level
+    assert _at_storage_floor(o16, f, small, [(3, 1e-3), (5, 0.4 * float(level.max()))]) is not None
+    assert _at_storage_floor(o16, f, small, [(3, 1e-3)]) is None  # still falling: a new low
+    assert _at_storage_floor(o16, f, 2.0 * level, [(3, 1e-9)]) is None  # changes more than it rounds
+    assert _at_storage_floor(o16, f, small, []) is None  # nothing to compare with
+    o32 = _Operator(pb, "float32", "fp32")
+    assert _at_storage_floor(o32, o32.unscattered(pb), small, [(3, 1e-9)]) is None  # float32: never
+
+
+def test_fp16_bases_are_beams_on_the_ordinates_lattice_and_a_warning_says_when_not():
+    """The beams' equivalence with the Kronecker bases needs the ordinates lattice (``bake_prototype``); on the
+    geist2008 lattice the bases stay boundary inflow, and the bake says what that costs."""
+    from pathlib import Path
+
+    from foliage_tools.lighting.optics import parse_leaf_optics
+    from foliage_tools.pipeline.lb import LBBakeParams, bake_lb
+    from foliage_tools.pipeline.report import Silent
+    from foliage_tools.pipeline.stage import begin_bake
+
+    example = Path(__file__).resolve().parents[2] / "examples" / "tree_small.usda"
+    _, scene, sun = begin_bake("lb", example, None, None, Silent())
+    kw = dict(optics=parse_leaf_optics(None), resolution=8, bases="all", storage="fp16")
+    for lattice, beams in (("ordinates", True), ("geist2008", False)):
+        warnings: list[str] = []
+        extra = {} if beams else {"sun_source": "boundary"}  # (the first-collision sun needs the ordinates lattice)
+        (bake,) = bake_lb(scene, sun, LBBakeParams(lattice=lattice, **extra, **kw), warnings, Silent())
+        assert bake.bases_as_beams == beams
+        assert bake.result.converged and (bake.total >= 0).all()
+        assert [w for w in warnings if "boundary inflow" in w] == ([] if beams else [warnings[0]])
+        if not beams:
+            assert "</Tree>" in warnings[0] and "geist2008 lattice" in warnings[0] and "fp32 storage" in warnings[0]

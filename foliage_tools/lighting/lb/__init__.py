@@ -124,10 +124,14 @@ is the same code as before), and do all arithmetic in float32, the dtype of
 FP32 arithmetic. Each stored value is rounded once per sweep, except in the
 hand loop of short occupied runs with a beam source, which rounds after the
 collision and again after the source. Pass-through copies move the 16-bit
-values unchanged. The residual is that of the stored (rounded) values, so an
-fp16 iteration ends at a fixed point of the rounded map, whose distance from
+values unchanged. The residual is that of the stored (rounded) values, so
+plain fp16 sweeps end at a fixed point of the rounded map, whose distance from
 the exact steady state is bounded by 2^-11 (I - T)^-1 |f| componentwise
-(tests/unit/test_lb_storage.py). BiCGSTAB is not offered with fp16.
+(tests/unit/test_lb_storage.py). Ordered sweeps (``auto``, ``ordered``) stop
+earlier, converged, once the residual no longer falls and no right-hand side
+changes by more than the sweep rounded it (``solvers._at_storage_floor``: the
+error bound is then at most twice the fixed point's). BiCGSTAB is not offered
+with fp16.
 
 Occupied nodes collide by the parity split of ``_parity_blocks``: two (9 x 9)
 @ (9 x n) products per channel and material on rho (f_2p +- f_2p+1), written
@@ -232,6 +236,7 @@ from foliage_tools.lighting.lb.layout import _Operator as _Operator
 from foliage_tools.lighting.lb.oracle import _reference_step as _reference_step
 from foliage_tools.lighting.lb.problem import SOLVERS as SOLVERS
 from foliage_tools.lighting.lb.problem import LatticeStabilityError, LBNumericalError, LBParams, LBProblem, LBResult
+from foliage_tools.lighting.lb.solvers import BEAM_SOURCE_FIELDS as BEAM_SOURCE_FIELDS
 from foliage_tools.lighting.lb.solvers import PLAIN_ITERATION_FIELDS as PLAIN_ITERATION_FIELDS
 from foliage_tools.lighting.lb.solvers import memory_bytes, solve
 from foliage_tools.lighting.lb.unscattered import unscattered_energy

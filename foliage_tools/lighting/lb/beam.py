@@ -36,20 +36,23 @@ def _march_nodes(ext, dx, dy, dz, out):  # pragma: no cover - compiled
 class BeamFields:
     """The exact unscattered beams of a problem and their first-collision sources (``beam_fields``)."""
 
-    direct: np.ndarray
-    """(nx, ny, nz, K, C) float64: irradiance of the unscattered beam at each node centre (0 for non-beam rhs)."""
-    power: np.ndarray
+    direct: np.ndarray | None
+    """(nx, ny, nz, K, C) float64: irradiance of the unscattered beam at each node centre (0 for non-beam rhs);
+    None when not asked for (``beam_fields(..., with_direct=False)``)."""
+    power: np.ndarray | None
     """(nx, ny, nz, K, C) float64: power the beam loses in each node's cell, per unit beam irradiance and
-    cell volume (lattice spacing 1)."""
+    cell volume (lattice spacing 1); None in an ``_Operator`` made without the beam outputs, once it has the power
+    in its run layout."""
     coef: np.ndarray
     """(nmat, C, K, 18) float64: ``(sigma_s / sigma_t) q_i(d) |c_i|``, so the source of direction i is coef x power."""
 
     def source(self, q: int, mat: np.ndarray) -> np.ndarray:
         """(nx, ny, nz, C, K) post-collision source s_q of moving direction q (= lattice index q + 1)."""
+        assert self.power is not None, "the beams' power was dropped (LBParams.beam_outputs False)"
         return self.coef[:, :, :, q][mat] * self.power.transpose(0, 1, 2, 4, 3)
 
 
-def beam_fields(problem: LBProblem) -> BeamFields:
+def beam_fields(problem: LBProblem, dtype=np.float64, with_direct: bool = True) -> BeamFields:
     """The first-collision source of every beam of ``problem`` (``Boundary.beam``), exactly attenuated.
 
     A unit beam travelling along d enters the grid from outside. Its optical depth per lattice
@@ -80,8 +83,8 @@ def beam_fields(problem: LBProblem) -> BeamFields:
     if len(media) == 2:
         mat[problem.brown_mask] = 1
     sig_t = np.array([m.sigma_t for m in media])  # (nmat, C)
-    direct = np.zeros((nx, ny, nz, K, C))
-    power = np.zeros((nx, ny, nz, K, C))
+    direct = np.zeros((nx, ny, nz, K, C), dtype) if with_direct else None
+    power = np.zeros((nx, ny, nz, K, C), dtype)
     coef = np.zeros((len(media), C, K, NQ))
     L = STEP_LENGTHS[1:]
     exts = {}
@@ -110,5 +113,7 @@ def beam_fields(problem: LBProblem) -> BeamFields:
                 _march_nodes(ext, -d[0], -d[1], -d[2], tau)
                 up = np.maximum(tau - 0.5 * chord * ext, 0.0)
                 done[key] = (np.exp(-tau), np.exp(-up) * -np.expm1(-chord * ext) / chord)
-            direct[..., k, c], power[..., k, c] = done[key]
+            if direct is not None:
+                direct[..., k, c] = done[key][0]
+            power[..., k, c] = done[key][1]
     return BeamFields(direct, power, coef)

@@ -76,15 +76,18 @@ def _balance(f, rho, rhod, mat, A, sig_a, inflow_mask, wq, pw, cq, use_src):  # 
 
 
 @njit(parallel=True, cache=True)
-def _once_scattered(f, att_a, att_d, power, cq, mat, ks, G):  # pragma: no cover - compiled
+def _once_scattered(f, att_a, att_d, pw, cq, mat, ks, G):  # pragma: no cover - compiled
     """f[., q, ., ., k] for the beam right-hand sides ks: the first-collision source carried along each lattice line.
 
     The steady state of f_q(r) = f_q(r - c_q) att_q(r - c_q) + s_q(r - c_q) (0 in inflow slots), s_q =
-    cq[m, c, q, k] power[r, k, c], built in the order of the line (one pass per direction, exact for
-    light scattered once); att_a / att_d: the per-step survival of axial / non-axial steps (nx, ny, nz, C).
-    f in the block layout of ``_Operator``; directions in parallel (each writes only its own slots).
+    cq[m, c, q, k] pw[r, c, k], built in the order of the line (one pass per direction, exact for light
+    scattered once); att_a / att_d: the per-step survival of axial / non-axial steps (nx, ny, nz, C).
+    f in the block layout of ``_Operator`` and pw, the beams' power, in its run layout (nx, NB, C, G nz K):
+    node (x, y, z) at [x, y // G, c, ((y % G) nz + z) K + k], so the right-hand sides are contiguous in both.
+    Directions in parallel (each writes only its own slots).
     """
     nx, ny, nz, C = att_a.shape
+    K = f.shape[5]
     for q in prange(NQ):
         cx, cy, cz = _CX[q], _CY[q], _CZ[q]
         att = att_a if q < 2 * NAXIAL_PAIRS else att_d
@@ -95,16 +98,21 @@ def _once_scattered(f, att_a, att_d, power, cq, mat, ks, G):  # pragma: no cover
                 for e in range(nz):
                     z = e if cz >= 0 else nz - 1 - e
                     ux, uy, uz = x - cx, y - cy, z - cz
+                    zo = (y % G) * nz + z
                     if ux < 0 or ux >= nx or uy < 0 or uy >= ny or uz < 0 or uz >= nz:
                         for c in range(C):
                             for k in ks:
-                                f[x, y // G, q, c, (y % G) * nz + z, k] = 0.0
+                                f[x, y // G, q, c, zo, k] = 0.0
                     else:
                         m = mat[ux, uy, uz]
+                        zu = (uy % G) * nz + uz
                         for c in range(C):
+                            out = f[x, y // G, q, c, zo]
+                            up = f[ux, uy // G, q, c, zu]
+                            src = pw[ux, uy // G, c, zu * K : zu * K + K]
+                            t = att[ux, uy, uz, c]
                             for k in ks:
-                                v = load(f[ux, uy // G, q, c, (uy % G) * nz + uz, k]) * att[ux, uy, uz, c]
-                                f[x, y // G, q, c, (y % G) * nz + z, k] = convert(v + cq[m, c, q, k] * power[ux, uy, uz, k, c], f)
+                                out[k] = convert(load(up[k]) * t + cq[m, c, q, k] * src[k], f)
 
 
 @njit(parallel=True, cache=True)
@@ -145,6 +153,39 @@ def _field_energy(f, ny, out):  # pragma: no cover - compiled
                         for q in range(1, nq):
                             u += load(blk[q, c, off + z, k])
                         out[x, y, z, k, c] = u
+
+
+@njit(parallel=True, cache=True)
+def _rounding_energy(f, rho, variance, rounded, norm):  # pragma: no cover - compiled
+    """Per x-slab (nx, C, K), added to ``rounded``: the expected squared error of the rounding to binary16 (uint16
+    ``f``, block layout) that the plain sweep which wrote f made, and to ``norm``: sum f^2.
+
+    A sweep rounds the value it stores at node y in direction i when it collided there, i.e. when the node it
+    came from, y - c_i, is occupied (rho > 0); a pass-through copy and an inflow slot are stored as they were.
+    A rounded value's squared error is taken as ``variance[e]`` (``storage.HALF_ROUNDING_VARIANCE``) of its
+    exponent field e.
+    """
+    nx, nb, nq, C, gnz, K = f.shape
+    ny = rho.shape[1]
+    nz = rho.shape[2]
+    G = gnz // nz
+    for x in prange(nx):
+        for y in range(ny):
+            blk = f[x, y // G]
+            off = (y % G) * nz
+            for z in range(nz):
+                for i in range(nq):
+                    ux = x - _CX[i]
+                    uy = y - _CY[i]
+                    uz = z - _CZ[i]
+                    collided = 0 <= ux < nx and 0 <= uy < ny and 0 <= uz < nz and rho[ux, uy, uz] > 0
+                    for c in range(C):
+                        for k in range(K):
+                            bits = blk[i, c, off + z, k]
+                            v = load(bits)
+                            norm[x, c, k] += v * v
+                            if collided:
+                                rounded[x, c, k] += variance[(bits >> 10) & 31]
 
 
 @njit(parallel=True, cache=True)

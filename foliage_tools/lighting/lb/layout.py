@@ -6,6 +6,7 @@ solvers. The package docstring (``lighting.lb``, "Layout and kernel") says why t
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Literal, overload
 
 import numpy as np
@@ -15,12 +16,19 @@ from foliage_tools.lighting.lattice import DIRECTIONS
 from foliage_tools.lighting.lb.beam import beam_fields
 from foliage_tools.lighting.lb.directions import NQ, power_weights
 from foliage_tools.lighting.lb.kernels_collide import _parity_blocks
-from foliage_tools.lighting.lb.kernels_field import _balance, _dot, _field_energy, _once_scattered, _put_transmitted
+from foliage_tools.lighting.lb.kernels_field import (
+    _balance,
+    _dot,
+    _field_energy,
+    _once_scattered,
+    _put_transmitted,
+    _rounding_energy,
+)
 from foliage_tools.lighting.lb.kernels_ordered import _sweep_ordered
 from foliage_tools.lighting.lb.kernels_sweep import _sweep_blocks, _sweep_rows
 from foliage_tools.lighting.lb.problem import LBProblem
 from foliage_tools.lighting.lb.unscattered import _attenuations, _transmittances
-from foliage_tools.lighting.storage import from_storage, storage_dtype, to_storage
+from foliage_tools.lighting.storage import HALF_ROUNDING_VARIANCE, from_storage, storage_dtype, to_storage
 
 #: Rows of nz K values at least this long (many right-hand sides) are swept one row at a time (``_sweep_rows``);
 #: shorter ones in blocks of ``_BLOCK_VALUES`` // (nz K) rows (``_sweep_blocks``), so that its loops run over
@@ -45,7 +53,7 @@ class _Operator:
     row, with few the kernel's loops still run over about ``_BLOCK_VALUES`` values.
     """
 
-    def __init__(self, problem: LBProblem, dtype: str, storage: str = "fp32") -> None:
+    def __init__(self, problem: LBProblem, dtype: str, storage: str = "fp32", beam_outputs: bool = True) -> None:
         self.dtype = np.dtype(dtype)  # arithmetic (and every array but the state)
         self.storage = storage_dtype(storage, dtype)  # the state: ``lighting.storage``
         nx, ny, nz = problem.shape
@@ -90,14 +98,19 @@ class _Operator:
         # kernel's run layout (nx, NB, C, G nz K); the source of direction i is cq[m, c, i, k] x that power,
         # built on the fly by the kernels (``_collide_pairs``) instead of stored as a field of 18 directions
         self.beam_rhs = np.array([b.beam is not None for b in problem.boundaries])
-        self.beams = beam_fields(problem) if self.beam_rhs.any() else None
+        self.beams = None
+        if self.beam_rhs.any():  # without the beam outputs: in the arithmetic dtype, no direct light
+            self.beams = beam_fields(problem) if beam_outputs else beam_fields(problem, self.dtype, with_direct=False)
         if self.beams is None:
             self.pw = np.zeros((nx, self.NB, 1, 1), self.dtype)  # never read (use_src False); indexable per block
             self.cq = np.zeros((1, 1, NQ, 1))
         else:
+            assert self.beams.power is not None  # just made
             pw = self._padded(self.beams.power)  # (nx, NB, G, nz, K, C)
             self.pw = np.ascontiguousarray(pw.transpose(0, 1, 5, 2, 3, 4).reshape(nx, self.NB, self.C, self.L), dtype=self.dtype)
             self.cq = np.ascontiguousarray(self.beams.coef.transpose(0, 1, 3, 2))  # (nmat, C, 18, K)
+            if not beam_outputs:  # the kernels and the start read the run layout: the array is not needed
+                self.beams = replace(self.beams, power=None)
         ct = np.tile(self.cq, (1, 1, 1, self.G * nz if self.beams is not None else 1))
         self.ct = np.ascontiguousarray(ct, dtype=self.dtype)
         self.cE = np.ascontiguousarray(0.5 * (ct[:, :, 0::2] + ct[:, :, 1::2]), dtype=self.dtype)
@@ -155,7 +168,7 @@ class _Operator:
             _put_transmitted(f, q, t, np.ascontiguousarray(self.bnd[q], dtype=self.dtype), self.G)
         if self.beams is not None:
             att_a, att_d = _attenuations(problem, np.float64)
-            _once_scattered(f, att_a, att_d, self.beams.power, self.cq, self.mat, np.nonzero(self.beam_rhs)[0], self.G)
+            _once_scattered(f, att_a, att_d, self.pw, self.cq, self.mat, np.nonzero(self.beam_rhs)[0], self.G)
         return f
 
     def balance(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -215,6 +228,17 @@ class _Operator:
             return None
         num, den = self.reduce(p1), self.reduce(p2)
         return np.sqrt(np.where(den > 0, _safe_div(num, den), np.where(num > 0, np.inf, 0.0)))
+
+    def rounding(self, f: np.ndarray) -> np.ndarray:
+        """(C, K) relative rms error ``sqrt(E[sum e^2] / sum f^2)`` of the rounding to binary16 that the plain sweep
+        which wrote the fp16 state f made (``_rounding_energy``): the size of change one more sweep would make by
+        rounding alone. fp16 storage only."""
+        assert self.storage == np.uint16, "rounding() is for fp16 storage"
+        rounded = np.zeros((self.nx, self.C, self.K))
+        norm = np.zeros((self.nx, self.C, self.K))
+        _rounding_energy(f, self.rho, HALF_ROUNDING_VARIANCE, rounded, norm)
+        num, den = rounded.sum(axis=0), norm.sum(axis=0)
+        return np.sqrt(np.where(den > 0, _safe_div(num, den), 0.0))
 
     def ordered_sweep(self, f: np.ndarray, forward: bool) -> None:
         """f <- one in-place ordered sweep (``kernels_ordered``), forward or backward through the nodes."""

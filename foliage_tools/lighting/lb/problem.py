@@ -161,6 +161,11 @@ class LBParams:
     (the paper's start: only the boundary densities)."""
     keep_f: bool = False
     """Return the full directional field ``LBResult.f`` (memory: 19 x the energy density)."""
+    beam_outputs: bool = True
+    """With beam right-hand sides: add the beams' exact unscattered light to ``energy_density`` and return it, their
+    power and the once-scattered field (``LBResult.beam_direct``, ``beam_power``, ``once_scattered``). False: the
+    energy density is the lattice's scattered light alone, and the beam arrays are in the arithmetic dtype and dropped
+    as soon as the solve has its source (a relightable bake's 18 bases as beams: ~0.9 field less)."""
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.tolerance) and 0 < self.tolerance < 1):
@@ -205,6 +210,7 @@ class LBResult:
     residuals: np.ndarray
     """(K, C) the same per right-hand side."""
     converged: bool
+    """The residual is below the tolerance, or (fp16 storage) at the storage's rounding level: ``storage_floor``."""
     seconds: float
     """Wall time of ``solve`` (setup, iteration and bookkeeping)."""
     solver: str
@@ -221,6 +227,9 @@ class LBResult:
     stalled: bool = False
     """The solve stopped because its residual stopped falling (round-off: float32's ~1e-8, fp16 storage's ~1e-6;
     ``solvers.STALL_SWEEPS``), not at the tolerance or at ``max_sweeps``."""
+    storage_floor: float | None = None
+    """fp16 storage: the relative rms rounding of one sweep at which ordered sweeps stopped, converged to the
+    storage's precision with a residual above the tolerance (``solvers._at_storage_floor``); None otherwise."""
     history: tuple[float, ...] = field(default=(), repr=False)
     """Max relative residual at each check of plain iteration and after each BiCGSTAB iteration (diagnostics)."""
     beam_direct: np.ndarray | None = field(default=None, repr=False)

@@ -158,7 +158,28 @@ AUTO_ORDERED_SWEEPS = 24
 ORDERED_TOLERANCE_FRACTION = 0.25
 
 
-def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: list, stalls: list[int] | None = None):
+def _at_storage_floor(op: _Operator, f: np.ndarray, res: np.ndarray, checks: list[tuple[int, float]]) -> np.ndarray | None:
+    """fp16 storage: the (C, K) rounding level (``_Operator.rounding``) of state f when the sweep that made it has
+    reached it, else None. Reached: the residual made no new low (it is no longer contracting as a converging
+    iteration does, which makes one at every measurement) and every right-hand side changed by no more than the
+    sweep rounded it.
+
+    Why that is the end of an fp16 solve: for the sweep g = T f + beta and its stored rounding rnd(g),
+    (I - T)(f - f*) = f - g = (rnd(g) - g) - (rnd(g) - f), so the state's error is (I - T)^-1 applied to this
+    sweep's rounding less its change. The rounding term is the storage's own: the fixed point of the rounded
+    map, where the change is 0, carries one as large. With the change no larger than the rounding, the error
+    bound is at most twice the fixed point's, and more sweeps only trade rounding noise (tree_small, 64^3, 18
+    bases as beams: the change fell from 5.0e-5 to 7.6e-6 over 52 more sweeps while the unrounded residual
+    |f - g| moved from 9.4e-5 to 9.0e-5 against a rounding of 8.8e-5, and the per-leaf result did not move).
+    """
+    if op.storage != np.uint16 or not checks or float(res.max()) < min(r for _, r in checks):
+        return None
+    level = op.rounding(f)
+    return level if bool(np.all(res <= level)) else None
+
+
+def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: list, stalls: list[int] | None = None,
+             floor: list[float] | None = None):
     """In-place ordered sweeps (``kernels_ordered``), forward and backward in turn, each from the second on
     followed by a plain sweep that measures the residual (the same residual as plain iteration's) and is kept
     as the next iterate. Returns (f, sweeps, residuals (C, K)); a sweep of either kind counts as one.
@@ -167,6 +188,9 @@ def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: lis
     residual falls slowly until the once-scattered light has left the grid (tree_small: 64 sweeps to 1e-5 at
     64^3, 128 at 128^3), whereas an ordered sweep carries half the directions across the whole grid and the
     residual falls by about an order of magnitude per sweep whatever the grid's size (``kernels_ordered``).
+
+    With fp16 storage they also stop at the storage's rounding level (``_at_storage_floor``), appended to
+    ``floor`` (its largest relative rms over the right-hand sides).
     """
     out = _copy_field(f)  # the sweeps never write inflow slots: both fields hold the boundary values there
     res = np.full((op.C, op.K), np.inf)
@@ -190,6 +214,13 @@ def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: lis
             raise LBNumericalError(f"the lattice field became non-finite (ordered sweeps, sweep {n}); please report it "
                                    "with the input.")
         if res.max() < tol * ORDERED_TOLERANCE_FRACTION:
+            break
+        level = _at_storage_floor(op, f, res, checks)
+        if level is not None:
+            log.info("lb solve: the fp16 state changes by %.2e per sweep, no more than its rounding (%.2e), and no longer "
+                     "falls: converged to the storage's precision after %d sweeps", float(res.max()), float(level.max()), n)
+            if floor is not None:
+                floor.append(float(level.max()))
             break
         checks.append((n, float(res.max())))
         if _stop_stalled(checks, n, float(res.max()), op.dtype, stalls, STALL_SWEEPS_ORDERED):
@@ -264,25 +295,26 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
     docstring (``lighting.lb``) for the solvers and units.
     """
     t0 = time.perf_counter()
-    op = _Operator(problem, params.dtype, params.storage)
+    op = _Operator(problem, params.dtype, params.storage, params.beam_outputs)
     nrhs = op.C * op.K
     tol = params.tolerance
     history: list[float] = []
     f = op.unscattered(problem) if params.initial == "unscattered" else op.initial()
     once = None
-    if op.beams is not None:  # the lattice's once-scattered light: the unscattered start for a beam
+    if op.beams is not None and params.beam_outputs:  # the lattice's once-scattered light: the unscattered start for a beam
         once = op.energy(f if params.initial == "unscattered" else op.unscattered(problem))
     sweeps = 0
     used: list[str] = []
     stalls: list[int] = []  # sweeps at which a phase stopped because its residual stalled
+    floor: list[float] = []  # fp16: the rounding level at which ordered sweeps stopped (``_at_storage_floor``)
     t_loop = time.perf_counter()
     res = np.full((op.C, op.K), np.inf)
     switched = False
     if params.solver == "auto":  # ordered sweeps first: most bakes converge there in a handful (``_ordered``)
-        f, sweeps, res = _ordered(op, f, tol, min(AUTO_ORDERED_SWEEPS, params.max_sweeps), history)
-        # (a stall here is not final: auto hands what is left to plain sweeps)
+        f, sweeps, res = _ordered(op, f, tol, min(AUTO_ORDERED_SWEEPS, params.max_sweeps), history, floor=floor)
+        # (a stall here is not final: auto hands what is left to plain sweeps; the fp16 storage's floor is)
         used.append("ordered")
-    if params.solver in ("iterate", "extrapolate") or (params.solver == "auto" and not res.max() < tol
+    if params.solver in ("iterate", "extrapolate") or (params.solver == "auto" and not res.max() < tol and not floor
                                                        and sweeps < params.max_sweeps):
         # auto: what ordered sweeps left (a strongly scattering medium's slow modes) goes to plain sweeps,
         # which switch to BiCGSTAB or extrapolation when they too are slow
@@ -293,7 +325,7 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
         sweeps += n
         used.append("extrapolate" if extra else "iterate")
     if params.solver == "ordered":
-        f, sweeps, res = _ordered(op, f, tol, params.max_sweeps, history, stalls)
+        f, sweeps, res = _ordered(op, f, tol, params.max_sweeps, history, stalls, floor)
         used.append("ordered")
     krylov = params.solver == "bicgstab"
     if switched:  # auto, and plain iteration is slow
@@ -337,7 +369,8 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
     inflow, outflow, absorbed = op.balance(f)
     energy = op.energy(f)  # (nx, ny, nz, K, C)
     if op.beams is not None:  # a beam's lattice field is its scattered light: add the exact unscattered beam
-        energy += op.beams.direct.astype(energy.dtype)
+        if op.beams.direct is not None:  # (beam_outputs False: the lattice's scattered light alone)
+            energy += op.beams.direct.astype(energy.dtype)
     full = op.from_row(f) if params.keep_f else None
     return LBResult(
         energy_density=energy,
@@ -346,8 +379,9 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
         iterations=sweeps,
         residual=float(res.max()),
         residuals=res.T.copy(),
-        converged=bool(res.max() < tol),
-        stalled=bool(stalls) and not res.max() < tol,
+        converged=bool(res.max() < tol) or bool(floor),
+        stalled=bool(stalls) and not res.max() < tol and not floor,
+        storage_floor=floor[-1] if floor else None,
         seconds=time.perf_counter() - t0,
         solver="+".join(used),
         mlups=op.nodes * nrhs * sweeps / max(loop_seconds, 1e-12) / 1e6,
@@ -365,6 +399,10 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
 #: Fields of 18 float32 directions (72 bytes per node and right-hand side) plain iteration holds: the
 #: state and its update, plus the outputs and temporaries of the bake (~0.3 field).
 PLAIN_ITERATION_FIELDS = 2.3
+
+#: Fields a solve of beams with ``LBParams.beam_outputs`` False adds: the beams' power in float32, in
+#: ``BeamFields`` until the source is built and in the run layout, each 1/18 of a field.
+BEAM_SOURCE_FIELDS = 0.1
 
 
 def memory_bytes(shape, nrhs: int, fields: float = PLAIN_ITERATION_FIELDS, value_bytes: int = 4) -> float:

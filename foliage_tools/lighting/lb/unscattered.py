@@ -70,7 +70,9 @@ def unscattered_energy(problem: LBProblem, dtype: str = "float32") -> np.ndarray
     for q, t in _transmittances(problem, bnd.any(axis=0), dtype):
         _add_transmitted(energy, t, np.ascontiguousarray(bnd[:, q], dtype=dtype))
     if any(b.beam is not None for b in problem.boundaries):
-        energy += beam_fields(problem).direct.astype(dtype)
+        direct = beam_fields(problem).direct
+        assert direct is not None  # asked for (the default)
+        energy += direct.astype(dtype)
     return energy
 
 
