@@ -5,7 +5,7 @@ Usage::
     python benchmarks/bench_lb_storage.py [--resolutions 64 96 128] [--scene examples/tree_small.usda]
 
 For each resolution, the relightable bake (``foliage lb --bases all``: 18 Kronecker bases x RGB
-solved, ambient = their sum; ``run_lb`` end to end: density, solve, never-scattered pass, VDB and
+solved, ambient = their sum; with fp16 the bases are solved as beams along the lattice directions; ``run_lb`` end to end: density, solve, never-scattered pass, VDB and
 layer written) runs once with ``--storage fp32`` and once with ``fp16``, each in its own process
 (so its peak resident memory, ``getrusage`` ``ru_maxrss``, is its own), one after the other. Then
 the ``--bases sun`` bake (first-collision sun, 3 rhs) at the first resolution, the same way.
