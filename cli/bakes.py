@@ -270,8 +270,11 @@ def bench_table(scene: Path, s: BenchStats) -> Table:
 @click.option("--bases", type=click.Choice(["sun", "all"]), default="sun", show_default=True,
               help="sun: the geist2008 sun boundary for the scene's sun (grid lbSun); all: the 18 Kronecker bases + ambient "
                    "of steele2010 3.1 for relighting (grids lbBase01..18, lbAmbient; 18x the memory and work of sun: "
-                   "~166 bytes per node and right-hand side, 128^3 ~16 GB; `foliage plan` shows it first).")
-@click.option("--tolerance", type=float, default=1e-5, show_default=True, help="Relative residual at which the steady state is accepted.")
+                   "~151 bytes per node and right-hand side, 128^3 ~14.5 GB, half that with --storage fp16; `foliage plan` "
+                   "shows it first).")
+@click.option("--tolerance", type=float, default=1e-5, show_default=True, help="Relative residual at which the steady state is accepted. With --storage fp16 a solve also counts as "
+                   "converged, with a warning, once a sweep changes the lattice by no more than its rounding to binary16 "
+                   "(~1e-4; README 'LB storage').")
 @click.option("--solver", type=click.Choice(["auto", "iterate", "bicgstab", "extrapolate", "ordered"]), default="auto", show_default=True,
               help="auto: ordered sweeps (in place, in alternating node order, so light crosses the whole grid in "
                    "one: ~7 sweeps where plain ones need about the grid's edge), then, if still short, plain ones "
@@ -284,9 +287,8 @@ def bench_table(scene: Path, s: BenchStats) -> Table:
                    "command exits 1 (a bake that failed its accuracy check).")
 @click.option("--storage", type=click.Choice(["fp32", "fp16"]), default="fp32", show_default=True,
               help="How the solver stores the lattice densities between sweeps: fp32, or fp16 (binary16 with float32 "
-                   "arithmetic: half the memory at about the same speed; with --bases all every leaf of the example tree was "
-                   "within 0.07 % of fp32; "
-                   "not with --solver bicgstab). The grids written are as --grid-precision says either way; README "
+                   "arithmetic: half the memory, 1.1-1.5x slower on the example tree, whose every leaf was within 0.07 % of "
+                   "fp32 with --bases all; not with --solver bicgstab). The grids written are as --grid-precision says either way; README "
                    "'LB storage' gives the measured error.")
 @grid_precision_option
 @click.option("--base-extent", type=click.Choice(["leaves", "lattice"]), default="leaves", show_default=True,

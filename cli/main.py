@@ -225,7 +225,7 @@ def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, ray
 
     Per tree: the grid each stage builds, the LB right-hand sides, sweeps and
     memory (the figure that decides whether --resolution 128 --bases all
-    fits: ~166 bytes per node and right-hand side), which s_max path runs,
+    fits: ~151 bytes per node and right-hand side with --bases all, ~86 with fp16), which s_max path runs,
     and estimated seconds per stage. Seconds are work divided by rates
     measured on a 2-core machine (listed in foliage_tools/pipeline/plan.py):
     scale them to yours. Memory does not depend on the machine.

@@ -289,7 +289,8 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
     # + the beam arrays (lb.BeamFields: direct and power in float64, the power again in the run layout): ~0.3 field;
     # + the single-scattering correction's float64 energy, extinction, emission and correction arrays: ~0.6 field
     correct = first_collision and params.single_scatter == "exact"
-    extra = (lb.PLAIN_ITERATION_FIELDS - 2.0 + (0.3 if first_collision else 0.0) + (0.6 if correct else 0.0)
+    plain = lb.PLAIN_ITERATION_FIELDS if params.bases == "sun" else lb.RELIGHTABLE_ITERATION_FIELDS
+    extra = (plain - 2.0 + (0.3 if first_collision else 0.0) + (0.6 if correct else 0.0)
              + (lb.BEAM_SOURCE_FIELDS if beam_bases else 0.0))
     nrhs = len(boundaries) * medium.channels
     # the 2 fields of plain iteration in the storage format, the rest (outputs, beams) in float32
@@ -454,11 +455,20 @@ def lb_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out:
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:direct", e_direct, type="color3f")
         edits.primvars += leaf_primvar_edits(proto, "foliage:lb:scattered", e_scattered, type="color3f")
         edits.attributes += baked_sun_attribute(scene, bake.index, "lb", sun.direction)
+        if r.rounding_level is not None and not r.residual < params.tolerance:
+            report.warnings.append(
+                f"prototype <{proto.path}>: LB converged to the fp16 storage's precision at residual {r.residual:.2e}, "
+                f"above --tolerance {params.tolerance:g}: a sweep now changes the lattice by no more than its rounding to "
+                f"binary16 ({r.rounding_level:.1e}), so more sweeps would only move rounding noise (README 'LB storage'). "
+                "Use --storage fp32 to reach the tolerance."
+            )
         if not r.converged:  # DESIGN.md section 3: a bake that failed its own accuracy check exits 1
             floor = "fp16 storage rarely gets below ~1e-6" if params.storage == "fp16" else "float32 fields rarely get below ~1e-7"
+            short = r.iterations < params.max_sweeps  # neither stalled nor out of sweeps: BiCGSTAB's restarts gave up
             why = (f"its residual stopped falling (round-off: {floor})" if r.stalled
+                   else f"its solver ({r.solver}) stopped making progress (round-off: {floor})" if short
                    else "it ran out of sweeps (--max-sweeps)")
-            fixes = [None if r.stalled else "raise --max-sweeps",
+            fixes = [None if r.stalled or short else "raise --max-sweeps",
                      "loosen --tolerance",
                      None if "bicgstab" in r.solver or params.storage == "fp16" else "try --solver bicgstab"]
             wanted = [x for x in fixes if x]
@@ -470,7 +480,7 @@ def lb_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out:
         proto_stats: LBPrototypeStats = {
             "path": proto.path, "volume": vol, "resolution": list(g.shape), "voxel_size": g.voxel_size,
             "solver": r.solver, "iterations": int(r.iterations), "residual": float(r.residual), "converged": bool(r.converged),
-            "stalled": bool(r.stalled), "storage_floor": r.storage_floor,
+            "stalled": bool(r.stalled), "rounding_level": r.rounding_level,
             "mlups": float(r.mlups), "seconds": bake.seconds, "density": bake.density_source, "storage": params.storage,
             "grid_precision": params.grid_precision,
             "e_direct_mean": e_direct.mean(axis=0).tolist(), "e_scattered_mean": e_scattered.mean(axis=0).tolist(),
@@ -498,7 +508,7 @@ def lb_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out:
     first = protos[0]
     stats: LBStats = {
         "solver": first["solver"], "iterations": first["iterations"], "residual": first["residual"],
-        "resolution": first["resolution"], "bases": params.bases, "mlups": first["mlups"], "storage": params.storage,
+        "tolerance": params.tolerance, "resolution": first["resolution"], "bases": params.bases, "mlups": first["mlups"], "storage": params.storage,
         "grid_precision": params.grid_precision, "first_order": "march" if marches(params) else "field",
         "sun": sun_stats(sun),
         "optics": params.optics.as_dict(), "absorption_scale": params.absorption_scale, "prototypes": protos,

@@ -18,7 +18,7 @@ import numpy as np
 
 from foliage_tools.errors import UsageError
 from foliage_tools.lighting.envelope import AUTO_FAST_THRESHOLD
-from foliage_tools.lighting.lb import BEAM_SOURCE_FIELDS, PLAIN_ITERATION_FIELDS, memory_bytes
+from foliage_tools.lighting.lb import BEAM_SOURCE_FIELDS, PLAIN_ITERATION_FIELDS, RELIGHTABLE_ITERATION_FIELDS, memory_bytes
 from foliage_tools.params import DEFAULT_RESOLUTION, DensityParams, check_resolution
 from foliage_tools.pipeline.density import density_grid
 from foliage_tools.pipeline.direct import auto_samples, instance_samples
@@ -158,7 +158,8 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         # the sun bake's first-collision beam arrays and single-scattering correction (pipeline.lb.bake_prototype)
         # (as pipeline.lb.bake_prototype: the two fields of plain iteration in the storage format, the rest float32)
         lb_bytes = (memory_bytes(grid.shape, rhs, 2.0, 2 if params.storage == "fp16" else 4)
-                    + memory_bytes(grid.shape, rhs, PLAIN_ITERATION_FIELDS - 2.0 + (0.9 if params.bases == "sun" else 0.0)
+                    + memory_bytes(grid.shape, rhs, (PLAIN_ITERATION_FIELDS + 0.9 if params.bases == "sun" else
+                                                     RELIGHTABLE_ITERATION_FIELDS) - 2.0
                                    + (BEAM_SOURCE_FIELDS if params.bases == "all" and params.storage == "fp16" else 0.0)))
         fast = n >= AUTO_FAST_THRESHOLD
         smax_s = (n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S) + scatterer_pairs(n) / SMAX_SCATTER_PAIRS_PER_S

@@ -84,8 +84,8 @@ class LBPrototypeStats(TypedDict):
     residual: float
     converged: bool
     stalled: bool
-    storage_floor: float | None
-    """fp16: the rounding level at which the solve counted as converged above --tolerance (lb.LBResult.storage_floor)."""
+    rounding_level: float | None
+    """fp16: the relative change one sweep's rounding makes, at which the solve counted as converged (lb.LBResult)."""
     mlups: float
     seconds: float
     density: str
@@ -103,6 +103,7 @@ class LBStats(TypedDict):
     solver: str
     iterations: int
     residual: float
+    tolerance: float
     resolution: list[int]
     bases: str
     mlups: float

@@ -180,6 +180,28 @@ def test_an_lb_bake_short_of_its_tolerance_is_written_and_exits_1(tmp_path):
     assert vol.GetAttribute("foliage:iterations").Get() == 2
 
 
+def test_lb_says_why_it_stopped_short_and_what_fp16_storage_accepts(tmp_path):
+    """BiCGSTAB's restarts giving up below float32 round-off is not running out of sweeps (exit 1, no "raise
+    --max-sweeps"); fp16 storage converges at its rounding level above a tolerance it cannot reach (exit 0), and
+    says so in a warning and in the JSON (the tolerance beside the residual)."""
+    import json
+
+    short = foliage("lb", EXAMPLE, "-o", tmp_path / "a.usda", "--resolution", "12", "--solver", "bicgstab",
+                    "--tolerance", "1e-9", "--json")
+    assert short.returncode == 1, short.stderr
+    (w,) = [w for w in json.loads(short.stdout)["warnings"] if "LB stopped after" in w]
+    assert "stopped making progress" in w and "loosen --tolerance" in w and "--max-sweeps" not in w
+    half = foliage("lb", EXAMPLE, "-o", tmp_path / "b.usda", "--resolution", "16", "--bases", "all", "--storage", "fp16",
+                   "--tolerance", "1e-9", "--json")
+    assert half.returncode == 0, half.stderr
+    report = json.loads(half.stdout)
+    proto = report["stats"]["prototypes"][0]
+    assert report["stats"]["tolerance"] == 1e-9 and proto["converged"] and not proto["stalled"]
+    assert proto["residual"] > 1e-9 and proto["residual"] <= proto["rounding_level"] < 1e-3
+    (w,) = [w for w in report["warnings"] if "fp16 storage's precision" in w]
+    assert "</Tree>" in w and "above --tolerance 1e-09" in w and "--storage fp32" in w
+
+
 def test_lb_reuses_the_density_an_earlier_stage_wrote_when_it_is_on_the_same_lattice(tmp_path):
     from foliage_tools.params import DensityParams
     from foliage_tools.pipeline.density import run_density

@@ -918,15 +918,17 @@ def test_bicgstab_with_no_room_for_a_step_says_plain_sweeps_ran():
 
 
 def test_ordered_sweeps_with_fp16_storage_stop_at_their_floor_within_a_short_window():
-    """In-place ordered sweeps on fp16 storage settle at a residual set by the rounding (7.7e-6 and 1.0e-5 in turn
-    here, the forward and backward sweeps' fixed points), above what plain sweeps of the rounded map reach: asked
-    for 1e-9 they stop once 16 sweeps bring no new low (``STALL_SWEEPS_ORDERED``), reported stalled, instead of
-    searching for 2 x 128 sweeps as plain sweeps do. (Once, in a full-suite run, this solve instead reached an
-    exact fixed point of the rounded map, residual < 1e-9, cause not found; that ending is accepted too.)"""
+    """In-place ordered sweeps on fp16 storage settle at a residual set by the rounding (1.2e-5 here), above what
+    plain sweeps of the rounded map reach: asked for 1e-9 they stop, converged to the storage's precision, once
+    the residual makes no new low within the rounding of a sweep (``solvers._at_storage_floor``, tested in
+    test_lb_storage), long before the 16-sweep stall window (``STALL_SWEEPS_ORDERED``) would. Should the rounding
+    test ever not hold there, the stall window still stops them, reported stalled, instead of searching for
+    2 x 128 sweeps as plain sweeps do."""
     from foliage_tools.lighting.lb.solvers import STALL_SWEEPS, STALL_SWEEPS_ORDERED
 
     pb = LBProblem(sphere(12, 0.45, 0.9), leaf_medium(), relighting_boundaries()[1:])
     r = solve(pb, LBParams(storage="fp16", solver="ordered", tolerance=1e-9, max_sweeps=3000))
-    if not r.converged:
-        assert r.stalled and r.residual < 1e-4
-        assert r.iterations < 2 * STALL_SWEEPS and r.iterations <= 4 * STALL_SWEEPS_ORDERED + 2
+    assert r.converged or r.stalled
+    assert r.residual < 1e-4 and r.iterations < 2 * STALL_SWEEPS and r.iterations <= 4 * STALL_SWEEPS_ORDERED + 2
+    if r.converged and r.residual >= 1e-9:
+        assert r.rounding_level is not None and r.residual <= r.rounding_level and not r.stalled

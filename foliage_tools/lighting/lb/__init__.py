@@ -238,6 +238,7 @@ from foliage_tools.lighting.lb.problem import SOLVERS as SOLVERS
 from foliage_tools.lighting.lb.problem import LatticeStabilityError, LBNumericalError, LBParams, LBProblem, LBResult
 from foliage_tools.lighting.lb.solvers import BEAM_SOURCE_FIELDS as BEAM_SOURCE_FIELDS
 from foliage_tools.lighting.lb.solvers import PLAIN_ITERATION_FIELDS as PLAIN_ITERATION_FIELDS
+from foliage_tools.lighting.lb.solvers import RELIGHTABLE_ITERATION_FIELDS as RELIGHTABLE_ITERATION_FIELDS
 from foliage_tools.lighting.lb.solvers import memory_bytes, solve
 from foliage_tools.lighting.lb.unscattered import unscattered_energy
 

@@ -210,7 +210,7 @@ class LBResult:
     residuals: np.ndarray
     """(K, C) the same per right-hand side."""
     converged: bool
-    """The residual is below the tolerance, or (fp16 storage) at the storage's rounding level: ``storage_floor``."""
+    """The residual is below the tolerance, or (fp16 storage) at the storage's rounding level: ``rounding_level``."""
     seconds: float
     """Wall time of ``solve`` (setup, iteration and bookkeeping)."""
     solver: str
@@ -227,9 +227,10 @@ class LBResult:
     stalled: bool = False
     """The solve stopped because its residual stopped falling (round-off: float32's ~1e-8, fp16 storage's ~1e-6;
     ``solvers.STALL_SWEEPS``), not at the tolerance or at ``max_sweeps``."""
-    storage_floor: float | None = None
-    """fp16 storage: the relative rms rounding of one sweep at which ordered sweeps stopped, converged to the
-    storage's precision with a residual above the tolerance (``solvers._at_storage_floor``); None otherwise."""
+    rounding_level: float | None = None
+    """fp16 storage: the relative rms change one sweep's rounding to binary16 makes, when the solve stopped because
+    its own change per sweep was no larger and no longer fell: converged to the storage's precision, whether its
+    residual is above the tolerance or not (``solvers._at_storage_floor``). None when it stopped otherwise."""
     history: tuple[float, ...] = field(default=(), repr=False)
     """Max relative residual at each check of plain iteration and after each BiCGSTAB iteration (diagnostics)."""
     beam_direct: np.ndarray | None = field(default=None, repr=False)

@@ -198,7 +198,8 @@ def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: lis
     passes = 0
     checks: list[tuple[int, float]] = []
     while n < budget:
-        if n + 2 <= budget:  # room for an ordered sweep and the plain one that measures it
+        paired = n + 2 <= budget  # room for an ordered sweep and the plain one that measures it
+        if paired:
             op.ordered_sweep(f, forward=passes % 2 == 0)
             passes += 1
             n += 1
@@ -215,7 +216,8 @@ def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: lis
                                    "with the input.")
         if res.max() < tol * ORDERED_TOLERANCE_FRACTION:
             break
-        level = _at_storage_floor(op, f, res, checks)
+        # (a lone plain sweep where the budget ends cannot make the ordered sweeps' new low: not judged)
+        level = _at_storage_floor(op, f, res, checks) if paired else None
         if level is not None:
             log.info("lb solve: the fp16 state changes by %.2e per sweep, no more than its rounding (%.2e), and no longer "
                      "falls: converged to the storage's precision after %d sweeps", float(res.max()), float(level.max()), n)
@@ -306,7 +308,7 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
     sweeps = 0
     used: list[str] = []
     stalls: list[int] = []  # sweeps at which a phase stopped because its residual stalled
-    floor: list[float] = []  # fp16: the rounding level at which ordered sweeps stopped (``_at_storage_floor``)
+    floor: list[float] = []  # fp16: the rounding level at which the solve stopped (``_at_storage_floor``)
     t_loop = time.perf_counter()
     res = np.full((op.C, op.K), np.inf)
     switched = False
@@ -360,6 +362,14 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
                                     stalls=stalls)
             sweeps += n
             used.append("iterate")
+    if stalls and not floor and op.storage == np.uint16 and not res.max() < tol:
+        # plain sweeps stalled (``_stalled``): on fp16 storage at its rounding level that is the same end as ordered
+        # sweeps reach (``_at_storage_floor``), so the same verdict
+        level = op.rounding(f)
+        if bool(np.all(res <= level)):
+            log.info("lb solve: the fp16 state changes by %.2e per sweep, no more than its rounding (%.2e): converged "
+                     "to the storage's precision after %d sweeps", float(res.max()), float(level.max()), sweeps)
+            floor.append(float(level.max()))
     loop_seconds = time.perf_counter() - t_loop
     log.debug("lb solve: %s nodes x %d rhs, %s, %d sweeps, residual %.2e (tolerance %.1e), %.2f s", f"{op.nodes:,}", nrhs,
               "+".join(used), sweeps, float(res.max()), tol, loop_seconds)
@@ -381,7 +391,7 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
         residuals=res.T.copy(),
         converged=bool(res.max() < tol) or bool(floor),
         stalled=bool(stalls) and not res.max() < tol and not floor,
-        storage_floor=floor[-1] if floor else None,
+        rounding_level=floor[-1] if floor else None,
         seconds=time.perf_counter() - t0,
         solver="+".join(used),
         mlups=op.nodes * nrhs * sweeps / max(loop_seconds, 1e-12) / 1e6,
@@ -399,6 +409,12 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
 #: Fields of 18 float32 directions (72 bytes per node and right-hand side) plain iteration holds: the
 #: state and its update, plus the outputs and temporaries of the bake (~0.3 field).
 PLAIN_ITERATION_FIELDS = 2.3
+
+#: The same for a relightable bake (``--bases all``, the 18 bases x RGB), measured: its peak resident memory is
+#: 2.02-2.06 float32 fields at 64^3-128^3 with fp32 storage, the same 2 fields' worth of state plus 0.07-0.12 field
+#: with fp16 (``benchmarks/bench_lb_storage.py``, 2026-12-04; the process itself holds ~0.3 GB of that). Its
+#: outputs (1/18 field each) come after the solve has let its second field go. 2.1 leaves a little margin.
+RELIGHTABLE_ITERATION_FIELDS = 2.1
 
 #: Fields a solve of beams with ``LBParams.beam_outputs`` False adds: the beams' power in float32, in
 #: ``BeamFields`` until the source is built and in the run layout, each 1/18 of a field.
