@@ -508,7 +508,7 @@ def lb_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out:
     first = protos[0]
     stats: LBStats = {
         "solver": first["solver"], "iterations": first["iterations"], "residual": first["residual"],
-        "tolerance": params.tolerance, "resolution": first["resolution"], "bases": params.bases, "mlups": first["mlups"], "storage": params.storage,
+        "tolerance": params.tolerance, "converged": all(p["converged"] for p in protos), "resolution": first["resolution"], "bases": params.bases, "mlups": first["mlups"], "storage": params.storage,
         "grid_precision": params.grid_precision, "first_order": "march" if marches(params) else "field",
         "sun": sun_stats(sun),
         "optics": params.optics.as_dict(), "absorption_scale": params.absorption_scale, "prototypes": protos,

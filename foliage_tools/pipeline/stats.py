@@ -104,6 +104,8 @@ class LBStats(TypedDict):
     iterations: int
     residual: float
     tolerance: float
+    converged: bool
+    """Every prototype's solve converged (each one's own is in ``prototypes``); False: the command exits 1."""
     resolution: list[int]
     bases: str
     mlups: float
