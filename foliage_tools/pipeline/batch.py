@@ -138,8 +138,10 @@ def run_batch(assets: list[Asset], outroot: Path, params: BatchParams, *, progre
     counts = Counts(total=len(plans))
     for p in plans:
         if p.reason is None:
+            # nothing ran for it now: no worker, no threads (the earlier bake's stay in the earlier record only)
             p.entry = {**previous[p.asset.name], "status": "cached", "seconds": 0.0, "input": str(p.asset.path),
-                       "reason": "inputs, options and tool unchanged since its last bake", "attempts": 0}
+                       "reason": "inputs, options and tool unchanged since its last bake", "attempts": 0,
+                       "worker": None, "threads": []}
             record[p.asset.name] = p.entry
             counts.cached += 1
     if todo:
