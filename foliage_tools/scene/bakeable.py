@@ -57,6 +57,16 @@ def composition_problems(stage: Usd.Stage, path: str) -> Iterator[Problem]:
         )
 
 
+def nonfinite_points(prim_path: str, points: np.ndarray) -> str | None:
+    """What is wrong with a mesh whose points (n, 3) are not all finite (the reader refuses it, validate's
+    finite-geometry rule reports it, in these words), or None."""
+    bad = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
+    if not bad:
+        return None
+    return (f"mesh <{prim_path}> has {bad} point(s) with NaN or infinite coordinates; fix the asset (e.g. re-export "
+            "it) before baking.")
+
+
 def topology_problem(prim_path: str, n_points: int, counts: np.ndarray, indices: np.ndarray) -> str | None:
     """Why a mesh's faces cannot be triangulated, or None."""
     if counts.size and counts.min() < 3:

@@ -148,12 +148,9 @@ class _Reader:
                                  "counts and face vertex indices, or remove it.")
             return None
         points = np.asarray(pts, dtype=np.float64)
-        if not np.all(np.isfinite(points)):
-            bad = int(np.count_nonzero(~np.isfinite(points).all(axis=1)))
-            raise InputError(
-                f"@{self.path}@: mesh <{prim.GetPath()}> has {bad} point(s) with NaN or infinite coordinates; "
-                "fix the asset (e.g. re-export it) before baking."
-            )
+        nonfinite = bakeable.nonfinite_points(str(prim.GetPath()), points)
+        if nonfinite:
+            raise InputError(f"@{self.path}@: {nonfinite}")
         counts = np.asarray(counts, dtype=np.int64)
         idx = np.asarray(idx, dtype=np.int64)
         broken = bakeable.topology_problem(str(prim.GetPath()), points.shape[0], counts, idx)

@@ -128,13 +128,13 @@ def _finite(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         if bakeable.mesh_lacks(pts, counts, idx) is not None:
             continue  # the readers skip it: the empty-meshes rule's warning
         p = np.asarray(pts, dtype=np.float64)
-        bad = int(np.count_nonzero(~np.isfinite(p).all(axis=1)))
-        if bad:
-            yield Finding(ERROR, "finite-geometry", f"<{prim.GetPath()}> has {bad} point(s) with NaN or infinite coordinates.", str(prim.GetPath()))
+        nonfinite = bakeable.nonfinite_points(str(prim.GetPath()), p)
+        if nonfinite:  # the reader's refusal, word for word
+            yield Finding(ERROR, "finite-geometry", f"@{path}@: {nonfinite}", str(prim.GetPath()))
         counts, idx = np.asarray(counts, dtype=np.int64), np.asarray(idx, dtype=np.int64)
         broken = bakeable.topology_problem(str(prim.GetPath()), p.shape[0], counts, idx)
         if broken:
-            yield Finding(ERROR, "finite-geometry", broken, str(prim.GetPath()))
+            yield Finding(ERROR, "finite-geometry", f"@{path}@: mesh {broken}", str(prim.GetPath()))  # as the reader
 
 
 @rule("stage-units", "metersPerUnit is finite and positive (bakes honour the stage's units).")
@@ -260,7 +260,7 @@ def _degenerate(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         diag = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0))) or 1.0
         n = int(np.count_nonzero(area <= DEGENERATE_AREA * diag * diag))
         if n:
-            yield Finding(WARNING, "degenerate-geometry", f"<{prim.GetPath()}> has {n} degenerate (zero-area) triangle(s); bakes ignore them.", str(prim.GetPath()))
+            yield Finding(WARNING, "degenerate-geometry", f"@{path}@: <{prim.GetPath()}> has {n} degenerate (zero-area) triangle(s); bakes ignore them.", str(prim.GetPath()))
 
 
 def _expected_length(mesh: UsdGeom.Mesh, interpolation: str) -> int | None:
@@ -296,15 +296,15 @@ def _primvar_lengths(stage: Usd.Stage, path: str) -> Iterator[Finding]:
                 n = len(pv.GetIndices())
                 indices = np.asarray(pv.GetIndices())
                 if indices.size and (indices.min() < 0 or indices.max() >= len(value)):
-                    yield Finding(ERROR, "primvar-lengths", f"<{prim.GetPath()}>.{pv.GetName()}: indices reach outside its {len(value)} values.", str(prim.GetPath()))
+                    yield Finding(ERROR, "primvar-lengths", f"@{path}@: <{prim.GetPath()}>.{pv.GetName()}: indices reach outside its {len(value)} values; re-export the primvar or remove it.", str(prim.GetPath()))
             else:
                 n = len(value)
             if n != expected * es:
                 yield Finding(
                     ERROR,
                     "primvar-lengths",
-                    f"<{prim.GetPath()}>.{pv.GetName()}: {n} values for {pv.GetInterpolation()} interpolation "
-                    f"(elementSize {es}) but the mesh needs {expected * es}.",
+                    f"@{path}@: <{prim.GetPath()}>.{pv.GetName()}: {n} values for {pv.GetInterpolation()} interpolation "
+                    f"(elementSize {es}) but the mesh needs {expected * es}; re-export the primvar or remove it.",
                     str(prim.GetPath()),
                 )
 
@@ -319,24 +319,25 @@ def _volume_grids(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         ap = file_attr.Get()
         name = asset.GetFieldNameAttr().Get()
         if ap is None or not ap.path:
-            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}> has no filePath.", str(prim.GetPath()))
+            yield Finding(ERROR, "volume-grids", f"@{path}@: <{prim.GetPath()}> has no filePath; author the .vdb it reads, or remove the field.", str(prim.GetPath()))
             continue
         resolved = ap.resolvedPath or ""
         if not resolved or not Path(resolved).is_file():
-            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: @{ap.path}@ does not exist. Re-run the bake that wrote it.", str(prim.GetPath()))
+            yield Finding(ERROR, "volume-grids", f"@{path}@: <{prim.GetPath()}>: @{ap.path}@ does not exist. Re-run the bake that wrote it.", str(prim.GetPath()))
             continue
         try:
             names = grid_names(Path(resolved))
         except InputError as exc:
-            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: {exc}", str(prim.GetPath()))
+            yield Finding(ERROR, "volume-grids", f"@{path}@: <{prim.GetPath()}>: {exc}", str(prim.GetPath()))
             continue
         if name not in names:
-            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: @{ap.path}@ has no grid {name!r} (it has {', '.join(names) or 'none'}).", str(prim.GetPath()))
+            yield Finding(ERROR, "volume-grids", f"@{path}@: <{prim.GetPath()}>: @{ap.path}@ has no grid {name!r} (it has {', '.join(names) or 'none'}); re-run the bake "
+                                  "that wrote it, or correct the field's fieldName.", str(prim.GetPath()))
             continue
         try:
             read_grid(Path(resolved), name)  # refuses NaN or infinite voxels, naming the file and grid
         except InputError as exc:
-            yield Finding(ERROR, "volume-grids", f"<{prim.GetPath()}>: {exc}", str(prim.GetPath()))
+            yield Finding(ERROR, "volume-grids", f"@{path}@: <{prim.GetPath()}>: {exc}", str(prim.GetPath()))
 
 
 @rule("bake-files-match", "Each bake layer's grid files and upstream layers are the ones it was written with (content hashes in its customLayerData).")
@@ -380,7 +381,7 @@ def _leaf_optics_attributes(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         if authored:
             yield Finding(
                 WARNING, "leaf-optics-attributes",
-                f"<{prim.GetPath()}> authors {' and '.join(authored)}, which foliage-tools does not read yet: the bakes use "
+                f"@{path}@: <{prim.GetPath()}> authors {' and '.join(authored)}, which foliage-tools does not read yet: the bakes use "
                 "--leaf-optics for every leaf. Pass its values with --leaf-optics rR,rG,rB,tR,tG,tB.",
                 str(prim.GetPath()),
             )
