@@ -57,6 +57,11 @@ def composition_problems(stage: Usd.Stage, path: str) -> Iterator[Problem]:
         )
 
 
+#: What to do about instancing inside a point instancer's prototype, which the bakes read one level of (the
+#: reader's warning and validate's nested-instancing rule say it in these words).
+NESTED_INSTANCING_FIX = "place those instances from the outer instancer, or make them plain (non-instanced) prims."
+
+
 def nonfinite_points(prim_path: str, points: np.ndarray) -> str | None:
     """What is wrong with a mesh whose points (n, 3) are not all finite (the reader refuses it, validate's
     finite-geometry rule reports it, in these words), or None."""

@@ -189,7 +189,7 @@ class _Reader:
                         (f"@{self.path}@: prototype <{path}> is itself a point instancer; its instances are not read"
                          if prim == root else
                          f"@{self.path}@: nested instancing at <{at}> inside prototype <{path}> is not read")
-                        + ": place those instances from the outer instancer, or make them plain (non-instanced) prims."
+                        + ": " + bakeable.NESTED_INSTANCING_FIX
                     )
                     it.PruneChildren()
                     continue

@@ -201,12 +201,12 @@ def _nested_instancing(stage: Usd.Stage, path: str) -> Iterator[Finding]:
                 elif inner.IsA(UsdGeom.PointInstancer) or (inner.IsInstance() and inner != root):
                     if inner == root:
                         what = (f"prototype <{root.GetPath()}> of point instancer <{prim.GetPath()}> is itself a point "
-                                "instancer; the bakes read one level of instancing and leave its instances out. Flatten "
-                                "them into the prototype (or into the outer instancer).")
+                                "instancer; the bakes read one level of instancing and leave its instances out: "
+                                + bakeable.NESTED_INSTANCING_FIX)
                     else:
                         what = (f"<{inner.GetPath()}> instances geometry inside prototype <{root.GetPath()}> of point "
-                                f"instancer <{prim.GetPath()}>; the bakes read one level of instancing and leave it out. "
-                                "Flatten it into the prototype (or into the outer instancer).")
+                                f"instancer <{prim.GetPath()}>; the bakes read one level of instancing and leave it out: "
+                                + bakeable.NESTED_INSTANCING_FIX)
                     yield Finding(WARNING, "nested-instancing", f"@{path}@: {what}", str(inner.GetPath()))
                     it.PruneChildren()
 
