@@ -932,3 +932,26 @@ def test_ordered_sweeps_with_fp16_storage_stop_at_their_floor_within_a_short_win
     assert r.residual < 1e-4 and r.iterations < 2 * STALL_SWEEPS and r.iterations <= 4 * STALL_SWEEPS_ORDERED + 2
     if r.converged and r.residual >= 1e-9:
         assert r.rounding_level is not None and r.residual <= r.rounding_level and not r.stalled
+
+
+def test_optical_depths_along_lattice_lines_are_the_march():
+    """``beam.optical_depths`` sums ext along the lattice line for the 18 lattice directions (one pass) where
+    ``_march_nodes`` marches from every node: the two integrals of the same piecewise-constant field along the
+    same ray agree to round-off, diagonals included (their rays pass through cell edges and corners)."""
+    from foliage_tools.lighting.lb.beam import _march_nodes, optical_depths
+
+    rng = np.random.default_rng(5)
+    ext = rng.uniform(0.0, 2.0, (9, 8, 10))
+    ext[rng.random(ext.shape) < 0.3] = 0.0
+    for k in range(1, 19):
+        d = UNIT_DIRECTIONS[k]
+        march, lines = np.empty(ext.shape), np.empty(ext.shape)
+        _march_nodes(ext, -d[0], -d[1], -d[2], march)
+        optical_depths(ext, d, lines)
+        np.testing.assert_allclose(lines, march, rtol=1e-12, atol=1e-12 * march.max())
+    # an off-lattice direction still marches
+    d = np.array([1.0, 2.0, 0.5]) / np.linalg.norm([1.0, 2.0, 0.5])
+    march, other = np.empty(ext.shape), np.empty(ext.shape)
+    _march_nodes(ext, -d[0], -d[1], -d[2], march)
+    optical_depths(ext, d, other)
+    np.testing.assert_array_equal(other, march)

@@ -32,6 +32,41 @@ def _march_nodes(ext, dx, dy, dz, out):  # pragma: no cover - compiled
                 out[i, j, k] = _march(ext, i + 0.5, j + 0.5, k + 0.5, dx, dy, dz)
 
 
+@njit(cache=True)
+def _line_sums(ext, cx, cy, cz, out):  # pragma: no cover - compiled
+    """out[r] = ext[r] + out[r - c] (0 beyond the grid): ext summed along the lattice line of c = (cx, cy, cz),
+    up to and including r, visiting the nodes in the order of the line (each upstream node before its own)."""
+    nx, ny, nz = ext.shape
+    for a in range(nx):
+        x = a if cx >= 0 else nx - 1 - a
+        for b in range(ny):
+            y = b if cy >= 0 else ny - 1 - b
+            for e in range(nz):
+                z = e if cz >= 0 else nz - 1 - e
+                ux, uy, uz = x - cx, y - cy, z - cz
+                up = out[ux, uy, uz] if (0 <= ux < nx and 0 <= uy < ny and 0 <= uz < nz) else 0.0
+                out[x, y, z] = ext[x, y, z] + up
+
+
+def optical_depths(ext: np.ndarray, d: np.ndarray, out: np.ndarray) -> None:
+    """out[r] = the optical depth from node centre r to the grid's edge toward -d (``_march_nodes``).
+
+    For d along a lattice direction c (the relightable bake's 18 bases as beams), the ray through r's centre
+    runs through the centres of r - c, r - 2c, ..., crossing each of those cells over the chord l_d = |c| and
+    half of r's own, so the depth is l_d (sum of ext along the line - ext(r) / 2): one pass over the grid
+    (``_line_sums``) instead of a march from every node (O(n^4): 4.5 s for the 18 bases at 128^3), the same
+    to round-off (tests/unit/test_lb_solver.py)."""
+    c = d / np.abs(d).max()
+    lattice = np.allclose(c, np.round(c), rtol=0.0, atol=1e-12)
+    if lattice:
+        ci = np.round(c).astype(np.int64)
+        _line_sums(ext, int(ci[0]), int(ci[1]), int(ci[2]), out)
+        out -= 0.5 * ext
+        out *= float(np.linalg.norm(ci))
+    else:
+        _march_nodes(ext, -d[0], -d[1], -d[2], out)
+
+
 @dataclass(frozen=True, eq=False)
 class BeamFields:
     """The exact unscattered beams of a problem and their first-collision sources (``beam_fields``)."""
@@ -58,8 +93,9 @@ def beam_fields(problem: LBProblem, dtype=np.float64, with_direct: bool = True) 
     A unit beam travelling along d enters the grid from outside. Its optical depth per lattice
     spacing at node r is ``ext = -ln(1 - rho sigma_t)`` (per channel and material; the axial
     per-step survival 1 - rho sigma_t of the lattice exactly, e^-ext; ``EXT_MAX`` caps it), and
-    ``depth._march`` integrates it exactly (piecewise constant per cell, Amanatides-Woo) from each
-    node centre toward the light, giving tau_c(r). Then, with l_d = 1 / max_k |d_k| the chord of d
+    ``depth._march`` integrates it exactly (piecewise constant per cell, Amanatides-Woo; along a lattice
+    direction, a sum along the lattice line: ``optical_depths``) from each node centre toward the light,
+    giving tau_c(r). Then, with l_d = 1 / max_k |d_k| the chord of d
     through the centre of a cell and tau_up = tau_c - ext l_d / 2 the depth at the cell's upstream
     face,
 
@@ -110,7 +146,7 @@ def beam_fields(problem: LBProblem, dtype=np.float64, with_direct: bool = True) 
             key = tuple(sig_t[:, c])
             if key not in done:
                 ext = exts[key]
-                _march_nodes(ext, -d[0], -d[1], -d[2], tau)
+                optical_depths(ext, d, tau)
                 up = np.maximum(tau - 0.5 * chord * ext, 0.0)
                 done[key] = (np.exp(-tau), np.exp(-up) * -np.expm1(-chord * ext) / chord)
             if direct is not None:
