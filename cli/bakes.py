@@ -287,8 +287,8 @@ def bench_table(scene: Path, s: BenchStats) -> Table:
                    "command exits 1 (a bake that failed its accuracy check).")
 @click.option("--storage", type=click.Choice(["fp32", "fp16"]), default="fp32", show_default=True,
               help="How the solver stores the lattice densities between sweeps: fp32, or fp16 (binary16 with float32 "
-                   "arithmetic: half the memory, 1.1-1.5x slower on the example tree, whose every leaf was within 0.07 % of "
-                   "fp32 with --bases all; not with --solver bicgstab). The grids written are as --grid-precision says either way; README "
+                   "arithmetic: half the memory at about the same speed; with --bases all every leaf of the example tree was "
+                   "within 0.07 % of fp32; not with --solver bicgstab). The grids written are as --grid-precision says either way; README "
                    "'LB storage' gives the measured error.")
 @grid_precision_option
 @click.option("--base-extent", type=click.Choice(["leaves", "lattice"]), default="leaves", show_default=True,
