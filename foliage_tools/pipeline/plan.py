@@ -40,6 +40,11 @@ LB_MLUPS_MANY, LB_MLUPS_FEW = 120e6, 70e6
 #: absorption (lower absorption needs more); an ordered sweep costs about 2 plain ones (64^3, 18 bases x RGB:
 #: 0.25 against 0.12 s), so the 7 cost about 11 plain sweeps.
 LB_SWEEPS, LB_PLAIN_SWEEP_EQUIVALENTS = 7, 11
+#: The relightable bake with fp16 storage runs 13 (9 at 64^3): its ordered sweeps stop at the storage's rounding
+#: level, one measurement after it (lighting.lb.solvers._at_storage_floor); its sweeps are 1.5-2.4x faster per node,
+#: so they cost about what fp32's 7 do (bench_lb_storage.py 2026-12-04, 128^3: 29.3-30.5 s against 33.6-35.7 s),
+#: and the seconds estimate stays that of fp32.
+LB_SWEEPS_FP16_BASES = 13
 #: Seconds per leaf of the area density kernel (bench_density.py: 100k leaves 0.23 s, 1M 2.07 s).
 DENSITY_S_PER_LEAF = 2.2e-6
 #: smax: reference pairs per second (O(N^2), bench_smax.py: 40k leaves 4.1-4.3 s, 100k 25-26 s) and
@@ -152,7 +157,7 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         grid = density_grid(proto, DensityParams(resolution=params.resolution))
         nodes = int(np.prod(grid.shape))
         rhs = 3 * (18 if params.bases == "all" else 1)
-        sweeps = LB_SWEEPS
+        sweeps = LB_SWEEPS_FP16_BASES if params.bases == "all" and params.storage == "fp16" else LB_SWEEPS
         lb_s = (LB_PLAIN_SWEEP_EQUIVALENTS * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW)
                 + nodes * (LB_S_PER_NODE + rhs * LB_S_PER_NODE_RHS))
         # the sun bake's first-collision beam arrays and single-scattering correction (pipeline.lb.bake_prototype)

@@ -45,6 +45,9 @@ def test_plan_lb_memory_follows_the_right_hand_sides():
     # bases' beam source (lb.BEAM_SOURCE_FIELDS: 0.1 field float32)
     half = json.loads(foliage("plan", EXAMPLE, "--resolution", "32", "--bases", "all", "--storage", "fp16", "--json").stdout)["stats"]
     assert half["storage"] == "fp16"
+    # more sweeps (its ordered sweeps stop one measurement after the rounding level), each cheaper: same seconds
+    assert half["prototypes"][0]["lb_sweeps_estimate"] == 13 and p_all["lb_sweeps_estimate"] == 7
+    assert half["seconds_estimate"]["lb"] == pytest.approx(all_["seconds_estimate"]["lb"], rel=1e-9)
     assert half["prototypes"][0]["lb_memory_bytes"] == pytest.approx(p_all["lb_memory_bytes"] * 1.2 / 2.1, rel=1e-6)  # whole bytes
 
 
