@@ -440,6 +440,9 @@ def lb_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out:
             "foliage:lb:g": tuple(float(v) for v in bake.medium.g),
             "foliage:lb:absorptionScale": float(params.absorption_scale),
             "foliage:lb:gridPrecision": params.grid_precision,
+            "foliage:tolerance": float(params.tolerance),
+            "foliage:lb:storage": params.storage,
+            "foliage:lb:roundingLevel": float(r.rounding_level or 0.0),
             **({"foliage:lb:baseExtent": params.base_extent} if params.bases == "all" else {}),
             "foliage:gatherRays": int(rays),
         }

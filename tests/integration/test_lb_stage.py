@@ -200,6 +200,14 @@ def test_lb_says_why_it_stopped_short_and_what_fp16_storage_accepts(tmp_path):
     assert proto["residual"] > 1e-9 and proto["residual"] <= proto["rounding_level"] < 1e-3
     (w,) = [w for w in report["warnings"] if "fp16 storage's precision" in w]
     assert "</Tree>" in w and "above --tolerance 1e-09" in w and "--storage fp32" in w
+    # and the layer says how its grids were solved, for whoever reads only the .usda
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(tmp_path / "b.usda"))
+    vol = stage.GetPrimAtPath("/Tree/FoliageLighting")
+    assert vol.GetAttribute("foliage:lb:storage").Get() == "fp16"
+    assert vol.GetAttribute("foliage:tolerance").Get() == pytest.approx(1e-9, rel=1e-6)
+    assert vol.GetAttribute("foliage:lb:roundingLevel").Get() == pytest.approx(proto["rounding_level"], rel=1e-6)
 
 
 def test_lb_reuses_the_density_an_earlier_stage_wrote_when_it_is_on_the_same_lattice(tmp_path):
