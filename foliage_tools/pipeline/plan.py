@@ -45,6 +45,11 @@ LB_SWEEPS, LB_PLAIN_SWEEP_EQUIVALENTS = 7, 11
 #: so they cost about what fp32's 7 do (bench_lb_storage.py 2026-12-04, 128^3: 29.3-30.5 s against 33.6-35.7 s),
 #: and the seconds estimate stays that of fp32.
 LB_SWEEPS_FP16_BASES = 13
+#: What the bake's process holds besides the LB arrays (Python, numba's compiled kernels, USD): the relightable
+#: bake's measured peaks less its 2.02-2.06 fields are 0.31 GB at 64^3 and 0.38-0.43 GB at 96^3-128^3 (fp32,
+#: bench_lb_storage.py 2026-12-04). The peak memory adds it (the ray scene's WORLD_BASE_BYTES is the same kind of
+#: base); the per-prototype LB memory is the solve's alone.
+PROCESS_BYTES = 0.3e9
 #: Seconds per leaf of the area density kernel (bench_density.py: 100k leaves 0.23 s, 1M 2.07 s).
 DENSITY_S_PER_LEAF = 2.2e-6
 #: smax: reference pairs per second (O(N^2), bench_smax.py: 40k leaves 4.1-4.3 s, 100k 25-26 s) and
@@ -175,7 +180,7 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         est = {"density": n * DENSITY_S_PER_LEAF, "smax": smax_s, "spp": spp_s, "lb": lb_s}
         for k, v in est.items():
             total_s[k] += v
-        peak = max(peak, lb_bytes)
+        peak = max(peak, lb_bytes + PROCESS_BYTES)
         protos.append({
             "path": proto.path, "leaves": n, "instances": instances, "grid": list(grid.shape),
             "voxel_size": grid.voxel_size, "lb_rhs": rhs, "lb_sweeps_estimate": round(sweeps),
@@ -216,7 +221,7 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         # the stand's sun solve (3 right-hand sides) with its beam arrays and exact first order, as a tree's
         forest_bytes = memory_bytes(shape, 3, PLAIN_ITERATION_FIELDS + 0.9)
         forest = {"nodes": nodes, "seconds_estimate_per_stage": nodes * FOREST_S_PER_NODE, "memory_bytes": round(forest_bytes)}
-        peak = max(peak, forest_bytes)
+        peak = max(peak, forest_bytes + PROCESS_BYTES)
         # smax, spp and lb each scale their instances by it (once per `foliage bake`)
         total_s["forest"] = nodes * FOREST_S_PER_NODE
     # --direct rays (the default): in each of smax, spp and lb run alone, once in a bake; every traced leaf

@@ -106,3 +106,22 @@ def test_the_reference_refuses_a_forest_whose_ray_scene_does_not_fit(monkeypatch
     with pytest.raises(UsageError, match=r"traces every instance: 16 instances .* more than the 0\.1 GB free"):
         bake_reference(scene, choose_sun(scene.lights, scene.up_axis, (0.0, 45.0), []),
                        ReferenceParams(optics=parse_leaf_optics(None), paths=1000), Silent())
+
+
+@pytest.mark.parametrize("storage", ["fp32", "fp16"])
+def test_plan_peak_memory_predicts_the_relightable_bakes_measured_peak(tmp_path, storage):
+    """The peak `plan` gives is what decides, before a bake, whether it fits: against the bake's own peak resident
+    memory (ru_maxrss of `foliage lb` run alone in a fresh process), at 64^3 with 18 bases x RGB, where the LB
+    fields dominate. It must not fall short by more than 5 % (a bake that fits on paper but not in memory is the
+    failure that matters), nor overstate by more than 25 % (the pre-solve check would refuse bakes that fit)."""
+    import subprocess
+    import sys
+
+    args = [EXAMPLE, "--resolution", "64", "--bases", "all", "--storage", storage]
+    plan = json.loads(foliage("plan", *args, "--json").stdout)["stats"]
+    measure = ("import resource, subprocess, sys; subprocess.run(sys.argv[1:], check=True, capture_output=True); "
+               "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)")
+    cmd = [sys.executable, "-m", "foliage_tools", "lb", *map(str, args), "-o", str(tmp_path / "b.usda"), "--gather", "0"]
+    out = subprocess.run([sys.executable, "-c", measure, *cmd], capture_output=True, text=True, timeout=300, check=True)
+    measured = int(out.stdout.split()[-1]) * 1024  # ru_maxrss: KiB on Linux
+    assert 0.8 * plan["peak_memory_bytes"] <= measured <= 1.05 * plan["peak_memory_bytes"], (measured, plan["peak_memory_bytes"])
