@@ -251,6 +251,21 @@ class LBPrototypeBake:
     """The 18 bases were solved as beams along the lattice directions (fp16 storage, ``bake_prototype``)."""
 
 
+def solve_bytes(shape, nrhs: int, *, storage: str, relightable: bool, first_collision: bool, corrected: bool,
+                beam_bases: bool) -> float:
+    """Bytes ``bake_prototype``'s LB solve holds: what it checks against free memory, and ``foliage plan`` shows.
+
+    The 2 fields of plain iteration in the storage format, the rest in float32: the outputs and temporaries
+    (``lb.PLAIN_ITERATION_FIELDS`` - 2, measured for a relightable bake as ``lb.RELIGHTABLE_ITERATION_FIELDS`` - 2);
+    a first-collision sun's beam arrays (lb.BeamFields: direct and power in float64, the power again in the run
+    layout: ~0.3 field) and its single-scattering correction's float64 energy, extinction, emission and correction
+    arrays (~0.6 field); fp16 bases as beams, their source (``lb.BEAM_SOURCE_FIELDS``)."""
+    plain = lb.RELIGHTABLE_ITERATION_FIELDS if relightable else lb.PLAIN_ITERATION_FIELDS
+    extra = (plain - 2.0 + (0.3 if first_collision else 0.0) + (0.6 if corrected else 0.0)
+             + (lb.BEAM_SOURCE_FIELDS if beam_bases else 0.0))
+    return lb.memory_bytes(shape, nrhs, 2.0, 2 if storage == "fp16" else 4) + lb.memory_bytes(shape, nrhs, extra)
+
+
 def _unit_extinction(medium: Medium) -> bool:
     return bool(np.allclose(medium.sigma_t, 1.0, rtol=0.0, atol=1e-12))
 
@@ -286,15 +301,10 @@ def bake_prototype(proto: Prototype, index: int, sun_local: np.ndarray, params: 
     problem = lb.LBProblem(density=rho, medium=medium, boundaries=boundaries,
                            brown_mask=mask if mask.any() else None, brown_medium=brown(medium) if mask.any() else None,
                            lattice=params.lattice)
-    # + the beam arrays (lb.BeamFields: direct and power in float64, the power again in the run layout): ~0.3 field;
-    # + the single-scattering correction's float64 energy, extinction, emission and correction arrays: ~0.6 field
     correct = first_collision and params.single_scatter == "exact"
-    plain = lb.PLAIN_ITERATION_FIELDS if params.bases == "sun" else lb.RELIGHTABLE_ITERATION_FIELDS
-    extra = (plain - 2.0 + (0.3 if first_collision else 0.0) + (0.6 if correct else 0.0)
-             + (lb.BEAM_SOURCE_FIELDS if beam_bases else 0.0))
     nrhs = len(boundaries) * medium.channels
-    # the 2 fields of plain iteration in the storage format, the rest (outputs, beams) in float32
-    need = lb.memory_bytes(grid.shape, nrhs, 2.0, 2 if params.storage == "fp16" else 4) + lb.memory_bytes(grid.shape, nrhs, extra)
+    need = solve_bytes(grid.shape, nrhs, storage=params.storage, relightable=params.bases == "all",
+                       first_collision=first_collision, corrected=correct, beam_bases=beam_bases)
     free = available_memory()
     if need > free:
         raise UsageError(

@@ -18,7 +18,6 @@ import numpy as np
 
 from foliage_tools.errors import UsageError
 from foliage_tools.lighting.envelope import AUTO_FAST_THRESHOLD
-from foliage_tools.lighting.lb import BEAM_SOURCE_FIELDS, PLAIN_ITERATION_FIELDS, RELIGHTABLE_ITERATION_FIELDS, memory_bytes
 from foliage_tools.params import DEFAULT_RESOLUTION, DensityParams, check_resolution
 from foliage_tools.pipeline.density import density_grid
 from foliage_tools.pipeline.direct import auto_samples, instance_samples
@@ -147,6 +146,8 @@ def scatterer_pairs(n: int) -> int:
 
 
 def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
+    from foliage_tools.pipeline.lb import solve_bytes  # (pipeline.lb imports available_memory from here)
+
     report: Report[PlanStats] = Report(command="plan", inputs=[str(path)])
     scene, warnings = read_scene(path)
     report.warnings.extend(warnings)
@@ -165,12 +166,11 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         sweeps = LB_SWEEPS_FP16_BASES if params.bases == "all" and params.storage == "fp16" else LB_SWEEPS
         lb_s = (LB_PLAIN_SWEEP_EQUIVALENTS * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW)
                 + nodes * (LB_S_PER_NODE + rhs * LB_S_PER_NODE_RHS))
-        # the sun bake's first-collision beam arrays and single-scattering correction (pipeline.lb.bake_prototype)
-        # (as pipeline.lb.bake_prototype: the two fields of plain iteration in the storage format, the rest float32)
-        lb_bytes = (memory_bytes(grid.shape, rhs, 2.0, 2 if params.storage == "fp16" else 4)
-                    + memory_bytes(grid.shape, rhs, (PLAIN_ITERATION_FIELDS + 0.9 if params.bases == "sun" else
-                                                     RELIGHTABLE_ITERATION_FIELDS) - 2.0
-                                   + (BEAM_SOURCE_FIELDS if params.bases == "all" and params.storage == "fp16" else 0.0)))
+        # as bake_prototype holds it with foliage lb's defaults: the sun bake first-collision and exactly corrected,
+        # the relightable one's bases as beams with fp16 (the ordinates lattice)
+        sun_bake = params.bases == "sun"
+        lb_bytes = solve_bytes(grid.shape, rhs, storage=params.storage, relightable=not sun_bake, first_collision=sun_bake,
+                               corrected=sun_bake, beam_bases=not sun_bake and params.storage == "fp16")
         fast = n >= AUTO_FAST_THRESHOLD
         smax_s = (n * SMAX_FAST_S_PER_LEAF if fast else n * n / SMAX_PAIRS_PER_S) + scatterer_pairs(n) / SMAX_SCATTER_PAIRS_PER_S
         instances = len(scene.instances_of(i))
@@ -219,7 +219,8 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         shape = forest_mod.stand_grid(scene).shape
         nodes = int(np.prod(shape))
         # the stand's sun solve (3 right-hand sides) with its beam arrays and exact first order, as a tree's
-        forest_bytes = memory_bytes(shape, 3, PLAIN_ITERATION_FIELDS + 0.9)
+        forest_bytes = solve_bytes(shape, 3, storage="fp32", relightable=False, first_collision=True, corrected=True,
+                                   beam_bases=False)
         forest = {"nodes": nodes, "seconds_estimate_per_stage": nodes * FOREST_S_PER_NODE, "memory_bytes": round(forest_bytes)}
         peak = max(peak, forest_bytes + PROCESS_BYTES)
         # smax, spp and lb each scale their instances by it (once per `foliage bake`)
