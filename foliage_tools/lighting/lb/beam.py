@@ -148,7 +148,7 @@ def beam_fields(problem: LBProblem, dtype=np.float64, with_direct: bool = True) 
                 ext = exts[key]
                 optical_depths(ext, d, tau)
                 up = np.maximum(tau - 0.5 * chord * ext, 0.0)
-                done[key] = (np.exp(-tau), np.exp(-up) * -np.expm1(-chord * ext) / chord)
+                done[key] = (np.exp(-tau) if direct is not None else None, np.exp(-up) * -np.expm1(-chord * ext) / chord)
             if direct is not None:
                 direct[..., k, c] = done[key][0]
             power[..., k, c] = done[key][1]

@@ -172,10 +172,29 @@ def _at_storage_floor(op: _Operator, f: np.ndarray, res: np.ndarray, checks: lis
     bases as beams: the change fell from 5.0e-5 to 7.6e-6 over 52 more sweeps while the unrounded residual
     |f - g| moved from 9.4e-5 to 9.0e-5 against a rounding of 8.8e-5, and the per-leaf result did not move).
     """
-    if op.storage != np.uint16 or not checks or float(res.max()) < min(r for _, r in checks):
+    if not checks or float(res.max()) < min(r for _, r in checks):
+        return None
+    return _within_rounding(op, f, res)
+
+
+def _within_rounding(op: _Operator, f: np.ndarray, res: np.ndarray) -> np.ndarray | None:
+    """fp16 storage: the (C, K) rounding level of state f if no right-hand side's residual exceeds it, else None."""
+    if op.storage != np.uint16:
         return None
     level = op.rounding(f)
     return level if bool(np.all(res <= level)) else None
+
+
+def _stop_at_rounding(level: np.ndarray | None, res: np.ndarray, n: int, floor: list[float] | None) -> bool:
+    """Whether a solve stops at the storage's rounding ``level`` (``_at_storage_floor`` or ``_within_rounding``);
+    if so say it and record the level in ``floor``."""
+    if level is None:
+        return False
+    log.info("lb solve: the fp16 state changes by %.2e per sweep, no more than its rounding (%.2e), and no longer "
+             "falls: converged to the storage's precision after %d sweeps", float(res.max()), float(level.max()), n)
+    if floor is not None:
+        floor.append(float(level.max()))
+    return True
 
 
 def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: list, stalls: list[int] | None = None,
@@ -217,12 +236,7 @@ def _ordered(op: _Operator, f: np.ndarray, tol: float, budget: int, history: lis
         if res.max() < tol * ORDERED_TOLERANCE_FRACTION:
             break
         # (a lone plain sweep where the budget ends cannot make the ordered sweeps' new low: not judged)
-        level = _at_storage_floor(op, f, res, checks) if paired else None
-        if level is not None:
-            log.info("lb solve: the fp16 state changes by %.2e per sweep, no more than its rounding (%.2e), and no longer "
-                     "falls: converged to the storage's precision after %d sweeps", float(res.max()), float(level.max()), n)
-            if floor is not None:
-                floor.append(float(level.max()))
+        if paired and _stop_at_rounding(_at_storage_floor(op, f, res, checks), res, n, floor):
             break
         checks.append((n, float(res.max())))
         if _stop_stalled(checks, n, float(res.max()), op.dtype, stalls, STALL_SWEEPS_ORDERED):
@@ -362,14 +376,10 @@ def solve(problem: LBProblem, params: LBParams = LBParams()) -> LBResult:  # noq
                                     stalls=stalls)
             sweeps += n
             used.append("iterate")
-    if stalls and not floor and op.storage == np.uint16 and not res.max() < tol:
-        # plain sweeps stalled (``_stalled``): on fp16 storage at its rounding level that is the same end as ordered
-        # sweeps reach (``_at_storage_floor``), so the same verdict
-        level = op.rounding(f)
-        if bool(np.all(res <= level)):
-            log.info("lb solve: the fp16 state changes by %.2e per sweep, no more than its rounding (%.2e): converged "
-                     "to the storage's precision after %d sweeps", float(res.max()), float(level.max()), sweeps)
-            floor.append(float(level.max()))
+    if stalls and not floor and not res.max() < tol:
+        # plain sweeps stalled (``_stalled``: no longer falling): on fp16 storage within its rounding that is the
+        # same end as ordered sweeps reach (``_at_storage_floor``), so the same verdict
+        _stop_at_rounding(_within_rounding(op, f, res), res, sweeps, floor)
     loop_seconds = time.perf_counter() - t_loop
     log.debug("lb solve: %s nodes x %d rhs, %s, %d sweeps, residual %.2e (tolerance %.1e), %.2f s", f"{op.nodes:,}", nrhs,
               "+".join(used), sweeps, float(res.max()), tol, loop_seconds)
