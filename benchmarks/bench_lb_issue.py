@@ -147,6 +147,12 @@ def kernel_table(repeats: int, bw: float) -> None:
             mlups = op.nodes * nrhs / dt / 1e6
             gs = "x".join(map(str, shape))
             print(f"   {'numba fused sweep, ' + str(n) + '^3':<34}{gs:<16}{nrhs:>5}{dt * 1e3:>10.1f}{mlups:>20.1f}{100 * mlups / roof:>7.0f}%{note}", flush=True)
+            if op.in_place:  # what plain iteration runs between measurements: a pair of in-place (AA) sweeps
+                op.set_inflow(f)
+                dt = median_seconds(lambda op=op, f=f: op.sweep_pair(f), repeats) / 2
+                mlups = op.nodes * nrhs / dt / 1e6
+                print(f"   {'  in place (AA pair / 2), ' + str(n) + '^3':<34}{gs:<16}{nrhs:>5}{dt * 1e3:>10.1f}{mlups:>20.1f}"
+                      f"{100 * mlups / roof:>7.0f}%{note}", flush=True)
             del f, out, op
         if n == 128:
             print("   numpy reference at 128^3: skipped (a 57-rhs step needs tens of GB of float64 temporaries; "

@@ -11,6 +11,7 @@ from numba import njit, prange
 
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NAXIAL_PAIRS, NH
 from foliage_tools.lighting.lb.kernels_collide import _add_squares, _collide_pairs
+from foliage_tools.lighting.lb.kernels_inplace import _block_occupancy, _collide_block
 from foliage_tools.lighting.lb.kernels_stream import _stream_piece, _stream_segment
 from foliage_tools.lighting.storage import convert, load
 
@@ -325,52 +326,17 @@ def _sweep_blocks(f, out, rho, rhod, mat, AE, AO, mode, wt, part1, part2, pw, cE
             F = f5[x, blk]
             if mode == 1:
                 _add_squares(F, part2[x])
-            # occupied nodes j0 .. j1 - 1 of the block (flat (row, z) index): only they collide
-            j0 = -1
-            j1 = -1
-            for m in range(nmat):
-                has[m] = False
-            for g in range(nrows):
-                rr = rho[x, y0 + g]
-                mm = mat[x, y0 + g]
-                for z in range(nz):
-                    if rr[z] > 0:
-                        if j0 < 0:
-                            j0 = g * nz + z
-                        j1 = g * nz + z + 1
-                        has[mm[z]] = True
-            l0 = max(j0, 0) * B
-            l1 = max(j1, 0) * B
+            # the occupied run [l0, l1) of the block: only its nodes collide
+            l0, l1 = _block_occupancy(rho, rhod, mat, pw, x, blk, G, B, add_src, rexp, pexp, has)
             n = l1 - l0
             Sb = buf[: NH * n].reshape((NH, n))
             Db = buf[NH * n : 2 * NH * n].reshape((NH, n))
             Eb = prod[: NH * n].reshape((NH, n))
             Ob = prod[NH * n : 2 * NH * n].reshape((NH, n))
-            if n > 0:
-                for m in range(nmat):
-                    re = rexp[m, 0]
-                    rq = rexp[m, 1]
-                    for j in range(j0, j1):
-                        g = j // nz
-                        z = j - g * nz
-                        own = mat[x, y0 + g, z] == m
-                        v = rho[x, y0 + g, z] if own else 0.0
-                        vd = rhod[x, y0 + g, z] if own else 0.0
-                        for b in range(B):
-                            re[(j - j0) * B + b] = v
-                            rq[(j - j0) * B + b] = vd
-                        if add_src and nmat > 1:
-                            for cc in range(C):
-                                for b in range(B):
-                                    pexp[m, cc, (j - j0) * B + b] = pw[x, blk, cc, j * B + b] if own else 0.0
             for c in range(C):
                 if n > 0:
-                    if nmat == 1:
-                        _collide_pairs(F, c, l0, n, rexp, 0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw[x, blk : blk + 1], l0,
-                                       cE, cO, B == 1, add_src)
-                    else:
-                        _collide_pairs(F, c, l0, n, rexp, 0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pexp, 0, cE, cO, B == 1,
-                                       add_src)
+                    _collide_block(F, c, l0, n, 0, rexp, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw, x, blk, pexp, cE, cO,
+                                   B == 1, add_src)
                 # push-streaming f_i(r + c_i) = post_i(r): within a block a y- and z-shift is one
                 # offset of the flat run; the row that crosses into the next (previous) block goes there
                 q1 = part1[x, c]

@@ -24,6 +24,7 @@ from foliage_tools.lighting.lb.kernels_field import (
     _put_transmitted,
     _rounding_energy,
 )
+from foliage_tools.lighting.lb.kernels_inplace import _aa_even, _aa_odd
 from foliage_tools.lighting.lb.kernels_ordered import _sweep_ordered
 from foliage_tools.lighting.lb.kernels_sweep import _sweep_blocks, _sweep_rows
 from foliage_tools.lighting.lb.problem import LBProblem
@@ -86,6 +87,7 @@ class _Operator:
         self.AE, self.AO = (np.ascontiguousarray(b, dtype=self.dtype) for b in _parity_blocks(A64))
         self.sig_a = np.array([m.sigma_a for m in media], dtype=np.float64)
         self.bnd = np.array([b.inflow for b in problem.boundaries], dtype=np.float64).T  # (18, K)
+        self.binf = np.ascontiguousarray(to_storage(self.bnd, self.storage))  # as stored, for the in-place sweeps
         # inflow slot (r, i): the upstream node r - c_i is outside the grid
         idx = np.indices(problem.shape)
         self.inflow_mask = np.zeros((nx, ny, nz, NQ), bool)
@@ -228,6 +230,19 @@ class _Operator:
             return None
         num, den = self.reduce(p1), self.reduce(p2)
         return np.sqrt(np.where(den > 0, _safe_div(num, den), np.where(num > 0, np.inf, 0.0)))
+
+    @property
+    def in_place(self) -> bool:
+        """Whether ``sweep_pair`` runs in place (the block kernel's layout, few right-hand sides)."""
+        return not self.long_rows
+
+    def sweep_pair(self, f: np.ndarray) -> None:
+        """f <- two plain sweeps of f, in place (the AA pattern, ``kernels_inplace``): what two ``sweep`` calls give,
+        in one field and with no residual. Block layout only (``in_place``)."""
+        assert self.in_place, "sweep_pair needs the block layout (few right-hand sides)"
+        args = (self.rho, self.rhod, self.mat, self.AE, self.AO, self.pw, self.cE, self.cO, self.use_src, self.binf)
+        _aa_even(f, *args)
+        _aa_odd(f, *args)
 
     def rounding(self, f: np.ndarray) -> np.ndarray:
         """(C, K) relative rms error ``sqrt(E[sum e^2] / sum f^2)`` of the rounding to binary16 that the plain sweep

@@ -75,7 +75,8 @@ def _iterate(
 ):
     """Plain sweeps from f, residual measured every ``every`` sweeps.
 
-    Returns (f, sweeps, residuals (C, K), stopped_to_switch).
+    Returns (f, sweeps, residuals (C, K), stopped_to_switch). Two consecutive unmeasured sweeps run in place
+    (``_Operator.sweep_pair``, few right-hand sides), the rest as push sweeps into ``out``.
 
     The warm-up (default: the longest edge, at least 16 sweeps) is the time
     light needs to cross the grid, during which the residual falls slowly
@@ -98,9 +99,19 @@ def _iterate(
     ratios: list[np.ndarray] = []
     allowed = np.ones((op.C, op.K), bool)  # right-hand sides extrapolation may still jump
     jumped: np.ndarray | None = None  # residual just before the last jump
-    for t in range(1, budget + 1):
+    def measured(t: int) -> bool:
+        return (extrapolate and t >= warm) or t % every == 0 or t == budget
+
+    t = 0
+    while t < budget:
+        t += 1
         every_sweep = extrapolate and t >= warm
-        check = every_sweep or t % every == 0 or t == budget
+        check = measured(t)
+        if op.in_place and not check and t < budget and not measured(t + 1):
+            op.sweep_pair(f)  # two unmeasured sweeps in place (the AA pattern): the same state, less memory traffic
+            t += 1
+            prev_res = None
+            continue
         r = op.sweep(f, out, residual=check)
         f, out = out, f  # f = f_t, out = f_{t-1}
         if not check:
