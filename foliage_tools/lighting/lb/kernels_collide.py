@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from foliage_tools.lighting.lattice import OPPOSITE
+from foliage_tools.lighting.lattice import DIRECTIONS, OPPOSITE
 from foliage_tools.lighting.lb.directions import NAXIAL_PAIRS, NH, NQ
 from foliage_tools.lighting.storage import load
 
@@ -83,6 +83,31 @@ def _add_squares(F, q):  # pragma: no cover - compiled
 
 
 @njit(fastmath=True, cache=True)
+def _add_source(ep, op, p, c, l0, n, has, pexp, p0, cE, cO, one):  # pragma: no cover - compiled
+    """ep += cE[m, c, p] pexp[m, c, p0 : p0 + n] and op += cO[...] likewise over the materials m with has[m]: the
+    beams' first-collision source of pair p split into its even and odd parts (``_collide_pairs``); ``one``: the
+    coefficients are constant along the run (a single right-hand side), else taken at [l0, l0 + n)."""
+    for m in range(has.size):
+        if not has[m]:
+            continue
+        pm = pexp[m, c, p0 : p0 + n]
+        if one:
+            ce1 = cE[m, c, p, 0]
+            co1 = cO[m, c, p, 0]
+            for l in range(n):
+                v = pm[l]
+                ep[l] += ce1 * v
+                op[l] += co1 * v
+        else:
+            ce = cE[m, c, p, l0 : l0 + n]
+            co = cO[m, c, p, l0 : l0 + n]
+            for l in range(n):
+                v = pm[l]
+                ep[l] += ce[l] * v
+                op[l] += co[l] * v
+
+
+@njit(fastmath=True, cache=True)
 def _collide_pairs(F, c, l0, n, rexp, r0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pexp, p0, cE, cO, one, use_src):  # pragma: no cover - compiled
     """E = AE S and O = AO D for channel c of the run [l0, l0 + n) of F (18, C, run), summed over materials.
 
@@ -139,24 +164,214 @@ def _collide_pairs(F, c, l0, n, rexp, r0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, e
                     ep[l] += tp[l]
                     op[l] += tq[l]
     if use_src:
-        for m in range(AE.shape[0]):
-            if not has[m]:
-                continue
-            pm = pexp[m, c, p0 : p0 + n]
-            for p in range(NH):
-                ep = Eb[p]
-                op = Ob[p]
-                if one:
-                    ce1 = cE[m, c, p, 0]
-                    co1 = cO[m, c, p, 0]
-                    for l in range(n):
-                        v = pm[l]
-                        ep[l] += ce1 * v
-                        op[l] += co1 * v
-                else:
-                    ce = cE[m, c, p, l0 : l0 + n]
-                    co = cO[m, c, p, l0 : l0 + n]
-                    for l in range(n):
-                        v = pm[l]
-                        ep[l] += ce[l] * v
-                        op[l] += co[l] * v
+        for p in range(NH):
+            _add_source(Eb[p], Ob[p], p, c, l0, n, has, pexp, p0, cE, cO, one)
+
+
+def _symmetry_bases() -> tuple[np.ndarray, np.ndarray]:
+    """Rows (9, 9) of the symmetry-adapted coordinates of the even (pair sums) and odd (pair differences) sectors.
+
+    A moving block depends only on the angle between directions (and on whether each is axial or not), so it
+    commutes with the 48 symmetries of the cube, which permute the 3 axial and the 6 non-axial pair axes. By
+    Schur's lemma it is then block-diagonal in coordinates that transform as the irreducible representations:
+    polynomials in the pair's direction v_p = c_2p evaluated over each set (``_collide_sym`` hard-codes these
+    rows). Even sector, functions of the unoriented axis: 1 (A1) on each set, x^2 - y^2 and 2z^2 - x^2 - y^2
+    (E) on each set, xy, yz, zx (T2, non-axial only). Odd sector, oriented: x, y, z (T1) on each set and
+    x(y^2 - z^2), y(z^2 - x^2), z(x^2 - y^2) (T2, non-axial only). Entries are 0, +-1, +-2.
+    """
+    v = np.asarray(DIRECTIONS[1::2][:NH], dtype=np.float64)  # c_2p
+    x, y, z = v.T
+    ax = (np.abs(v).sum(axis=1) == 1).astype(np.float64)
+    dg = 1.0 - ax
+    even = [ax, dg, ax * (x * x - y * y), dg * (x * x - y * y), ax * (2 * z * z - x * x - y * y), dg * (2 * z * z - x * x - y * y),
+            dg * x * y, dg * y * z, dg * z * x]
+    odd = [ax * x, ax * y, ax * z, dg * x, dg * y, dg * z, dg * x * (y * y - z * z), dg * y * (z * z - x * x), dg * z * (x * x - y * y)]
+    return np.array(even), np.array(odd)
+
+
+#: The (row, column) pairs of the blocks ``_symmetry_blocks`` packs, in order: even sector A1, E (x^2 - y^2),
+#: E (2z^2 - x^2 - y^2) as 2 x 2 blocks of (axial, non-axial) and T2 as its diagonal; odd sector T1 (x, y, z) as
+#: 2 x 2 blocks of (axial, non-axial) and T2 as its diagonal.
+_EVEN_SLOTS = ((0, 0), (0, 1), (1, 0), (1, 1), (2, 2), (2, 3), (3, 2), (3, 3), (4, 4), (4, 5), (5, 4), (5, 5), (6, 6), (7, 7), (8, 8))
+_ODD_SLOTS = ((0, 0), (0, 3), (3, 0), (3, 3), (1, 1), (1, 4), (4, 1), (4, 4), (2, 2), (2, 5), (5, 2), (5, 5), (6, 6), (7, 7), (8, 8))
+
+
+def _symmetry_blocks(AE: np.ndarray, AO: np.ndarray) -> np.ndarray:
+    """The 30 coefficients (..., 30) of the parity blocks AE, AO (..., 9, 9) in symmetry-adapted coordinates.
+
+    With W the rows of ``_symmetry_bases`` (orthogonal, D = W W^T diagonal), A = W^T N W for N = D^-1 W A W^T D^-1,
+    and N has nonzeros only at ``_EVEN_SLOTS`` / ``_ODD_SLOTS``: 15 multiply-adds per sector where A has 81
+    (``_collide_sym``). A block that is not of that form is refused (as ``_parity_blocks`` refuses one that does
+    not commute with inversion) rather than collided wrongly.
+    """
+    out = []
+    for W, A, slots in zip(_symmetry_bases(), (AE, AO), (_EVEN_SLOTS, _ODD_SLOTS)):
+        dinv = 1.0 / np.diag(W @ W.T)
+        N = np.einsum("i,ip,...pq,jq,j->...ij", dinv, W, A, W, dinv)
+        keep = np.zeros((NH, NH), bool)
+        keep[tuple(np.array(slots).T)] = True
+        scale = max(1.0, float(np.abs(A).max()))
+        if np.abs(N[..., ~keep]).max(initial=0.0) > 1e-12 * scale:
+            raise ValueError("the collision block does not have the lattice's cubic symmetry; the kernel's symmetry "
+                             "blocks need it")
+        out.append(np.stack([N[..., i, j] for i, j in slots], axis=-1))
+    return np.concatenate(out, axis=-1)
+
+
+#: Distance between the output rows of ``_collide_sym`` in its scratch array: a compile-time constant (with row
+#: distances known only at run time the vectorizer gave up on the loop's many possible overlaps and it ran scalar),
+#: 16 values more than the longest run (4096, ``layout._BLOCK_VALUES``) so that its 18 rows fall in different L1
+#: sets (rows 16 KiB apart all map to one set: a copy of 18 such rows ran 3-4x slower).
+SYM_RUN = 4096 + 16
+
+
+def sym_row_stride(run: int) -> int:
+    """A row distance (values) >= run for scratch rows read together: a multiple of 1024 values plus 16 (see
+    ``SYM_RUN``)."""
+    return -(-run // 1024) * 1024 + 16
+
+
+@njit(fastmath=True, cache=True)
+def _collide_sym(F, c, l0, n, rexp, r0, m, Q, EO):  # pragma: no cover - compiled
+    """E = AE S and O = AO D (``_collide_pairs``) of material m in symmetry-adapted coordinates, in one pass.
+
+    For channel c of the run [l0, l0 + n) of F (18, C, run) (n <= ``SYM_RUN``): S_p = rho_p (f_2p + f_2p+1), D_p =
+    rho_p (f_2p - f_2p+1) (rho_p = rexp[m, 0 | 1, r0 + l], axial | non-axial, 0 off m's nodes), transformed by the
+    rows W of ``_symmetry_bases`` (additions), multiplied by the blocks Q[m, c] of ``_symmetry_blocks`` (30
+    multiply-adds where the (9 x 9) products take 162) and transformed back by W^T. E_p is written to
+    EO[p SYM_RUN + l], O_p to EO[(9 + p) SYM_RUN + l]; the post-collision values are f_2p + E_p + O_p and
+    f_2p+1 + E_p - O_p. F's rows should not be a multiple of 1024 values apart (``sym_row_stride``): 18 rows in
+    one L1 set run several times slower.
+    """
+    q = Q[m, c]
+    a00, a01, a10, a11 = q[0], q[1], q[2], q[3]
+    b00, b01, b10, b11 = q[4], q[5], q[6], q[7]
+    c00, c01, c10, c11 = q[8], q[9], q[10], q[11]
+    t6, t7, t8 = q[12], q[13], q[14]
+    x00, x01, x10, x11 = q[15], q[16], q[17], q[18]
+    y00, y01, y10, y11 = q[19], q[20], q[21], q[22]
+    z00, z01, z10, z11 = q[23], q[24], q[25], q[26]
+    u6, u7, u8 = q[27], q[28], q[29]
+    u0 = np.uint64(l0)
+    v0_ = np.uint64(r0)
+    for l in range(np.uint64(n)):
+        # every array indexed in full (one base pointer each: slices per direction would give the vectorizer more
+        # possible overlaps to check than it takes), by unsigned indices (no negative-index wraparound): or the
+        # loop stays scalar, ~9x slower
+        ka = rexp[m, 0, v0_ + l]
+        kd = rexp[m, 1, v0_ + l]
+        j = u0 + l
+        v0, v1, v2, v3, v4, v5 = load(F[0, c, j]), load(F[1, c, j]), load(F[2, c, j]), load(F[3, c, j]), load(F[4, c, j]), load(F[5, c, j])
+        v6, v7, v8, v9, v10, v11 = load(F[6, c, j]), load(F[7, c, j]), load(F[8, c, j]), load(F[9, c, j]), load(F[10, c, j]), load(F[11, c, j])
+        v12, v13, v14, v15, v16, v17 = (load(F[12, c, j]), load(F[13, c, j]), load(F[14, c, j]), load(F[15, c, j]), load(F[16, c, j]),
+                                        load(F[17, c, j]))
+        s0, s1, s2 = v0 + v1, v2 + v3, v4 + v5
+        s3, s4, s5, s6, s7, s8 = v6 + v7, v8 + v9, v10 + v11, v12 + v13, v14 + v15, v16 + v17
+        d0, d1, d2 = v0 - v1, v2 - v3, v4 - v5
+        d3, d4, d5, d6, d7, d8 = v6 - v7, v8 - v9, v10 - v11, v12 - v13, v14 - v15, v16 - v17
+        # even sector: W s (rows of ``_symmetry_bases``), axial rows x rho_a, non-axial x rho_d
+        pxy = s3 + s4
+        pxz = s5 + s6
+        pyz = s7 + s8
+        w0 = ka * (s0 + s1 + s2)
+        w1 = kd * (pxy + pxz + pyz)
+        w2 = ka * (s0 - s1)
+        w3 = kd * (pxz - pyz)
+        w4 = ka * (s2 + s2 - s0 - s1)
+        w5 = kd * (pxz + pyz - pxy - pxy)
+        w6 = kd * (s3 - s4)
+        w7 = kd * (s7 - s8)
+        w8 = kd * (s5 - s6)
+        g0 = a00 * w0 + a01 * w1
+        g1 = a10 * w0 + a11 * w1
+        g2 = b00 * w2 + b01 * w3
+        g3 = b10 * w2 + b11 * w3
+        g4 = c00 * w4 + c01 * w5
+        g5 = c10 * w4 + c11 * w5
+        g6 = t6 * w6
+        g7 = t7 * w7
+        g8 = t8 * w8
+        # back: W^T g
+        h1 = g1 - g5 - g5
+        h2 = g1 + g3 + g5
+        h3 = g1 - g3 + g5
+        E0 = g0 + g2 - g4
+        E1 = g0 - g2 - g4
+        E2 = g0 + g4 + g4
+        E3 = h1 + g6
+        E4 = h1 - g6
+        E5 = h2 + g8
+        E6 = h2 - g8
+        E7 = h3 + g7
+        E8 = h3 - g7
+        # odd sector
+        ex = d3 + d4
+        ey = d5 + d6
+        w0 = ka * d0
+        w1 = ka * d1
+        w2 = ka * d2
+        w3 = kd * (ex + ey)
+        w4 = kd * (d3 - d4 + d7 + d8)
+        w5 = kd * (d5 - d6 + d7 - d8)
+        w6 = kd * (ex - ey)
+        w7 = kd * (d4 - d3 + d7 + d8)
+        w8 = kd * (d5 - d6 - d7 + d8)
+        g0 = x00 * w0 + x01 * w3
+        g3 = x10 * w0 + x11 * w3
+        g1 = y00 * w1 + y01 * w4
+        g4 = y10 * w1 + y11 * w4
+        g2 = z00 * w2 + z01 * w5
+        g5 = z10 * w2 + z11 * w5
+        g6 = u6 * w6
+        g7 = u7 * w7
+        g8 = u8 * w8
+        O3 = g3 + g4 + g6 - g7
+        O4 = g3 - g4 + g6 + g7
+        O5 = g3 + g5 - g6 + g8
+        O6 = g3 - g5 - g6 - g8
+        O7 = g4 + g5 + g7 - g8
+        O8 = g4 - g5 + g7 + g8
+        O0 = g0
+        O1 = g1
+        O2 = g2
+        EO[0 * SYM_RUN + l] = E0
+        EO[1 * SYM_RUN + l] = E1
+        EO[2 * SYM_RUN + l] = E2
+        EO[3 * SYM_RUN + l] = E3
+        EO[4 * SYM_RUN + l] = E4
+        EO[5 * SYM_RUN + l] = E5
+        EO[6 * SYM_RUN + l] = E6
+        EO[7 * SYM_RUN + l] = E7
+        EO[8 * SYM_RUN + l] = E8
+        EO[9 * SYM_RUN + l] = O0
+        EO[10 * SYM_RUN + l] = O1
+        EO[11 * SYM_RUN + l] = O2
+        EO[12 * SYM_RUN + l] = O3
+        EO[13 * SYM_RUN + l] = O4
+        EO[14 * SYM_RUN + l] = O5
+        EO[15 * SYM_RUN + l] = O6
+        EO[16 * SYM_RUN + l] = O7
+        EO[17 * SYM_RUN + l] = O8
+
+
+@njit(fastmath=True, cache=True)
+def _collide_run(F, c, l0, n, rexp, r0, has, Q, EO, pexp, p0, cE, cO, one, use_src):  # pragma: no cover - compiled
+    """``_collide_pairs`` by ``_collide_sym``: E_p and O_p of channel c of the run [l0, l0 + n) of F summed over
+    the materials with has[m] (disjoint nodes), plus with ``use_src`` the beams' source (``_add_source``), in rows
+    p and 9 + p of EO (``SYM_RUN`` apart; rows 18-35 are scratch for a second material)."""
+    first = True
+    for m in range(has.size):
+        if not has[m]:
+            continue
+        _collide_sym(F, c, l0, n, rexp, r0, m, Q, EO if first else EO[NQ * SYM_RUN :])
+        if not first:
+            for p in range(NQ):
+                dst = EO[p * SYM_RUN : p * SYM_RUN + n]
+                src = EO[(NQ + p) * SYM_RUN : (NQ + p) * SYM_RUN + n]
+                for l in range(n):
+                    dst[l] += src[l]
+        first = False
+    if use_src:
+        for p in range(NH):
+            _add_source(EO[p * SYM_RUN : p * SYM_RUN + n], EO[(NH + p) * SYM_RUN : (NH + p) * SYM_RUN + n], p, c, l0, n, has,
+                        pexp, p0, cE, cO, one)

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit, prange
 
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NH
-from foliage_tools.lighting.lb.kernels_collide import _collide_pairs
+from foliage_tools.lighting.lb.kernels_collide import SYM_RUN, _collide_pairs, _collide_run
 from foliage_tools.lighting.storage import convert, load
 
 
@@ -89,6 +89,15 @@ def _collide_block(F, c, la, n, ra, rexp, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, e
 
 
 @njit(fastmath=True, cache=True)
+def _collide_block_sym(F, c, la, n, ra, rexp, has, Q, EO, pw, x, blk, pexp, cE, cO, one, add_src):  # pragma: no cover - compiled
+    """``_collide_block`` by the symmetry blocks Q (``_collide_run``): E_p, O_p in rows p, 9 + p of EO."""
+    if has.size == 1:
+        _collide_run(F, c, la, n, rexp, ra, has, Q, EO, pw[x, blk : blk + 1], la, cE, cO, one, add_src)
+    else:
+        _collide_run(F, c, la, n, rexp, ra, has, Q, EO, pexp, ra, cE, cO, one, add_src)
+
+
+@njit(fastmath=True, cache=True)
 def _fill(run, values, B):  # pragma: no cover - compiled
     """run[j B + k] = values[k] for every node j of the run."""
     for j in range(run.size // B):
@@ -104,9 +113,9 @@ def _copy(dst, src):  # pragma: no cover - compiled
 
 
 @njit(fastmath=True, cache=True)
-def _put(dst, s, d, a, b, l0, l1, ep, op, sg):  # pragma: no cover - compiled
-    """dst[l + d] = post(l) for l in [a, b): s[l] + ep[l - l0] + sg op[l - l0] on the collided run [l0, l1), s[l]
-    as stored elsewhere."""
+def _put(dst, s, d, a, b, l0, l1, ep, op, sg, zero):  # pragma: no cover - compiled
+    """dst[l + d] = post(l) for l in [a, b): max(s[l] + ep[l - l0] + sg op[l - l0], 0) on the collided run [l0, l1)
+    (``_aa_even`` says why no lower than 0), s[l] as stored elsewhere."""
     c1 = min(b, l0)
     if c1 > a:
         _copy(dst[a + d : c1 + d], s[a:c1])
@@ -118,18 +127,20 @@ def _put(dst, s, d, a, b, l0, l1, ep, op, sg):  # pragma: no cover - compiled
         ee = ep[c0 - l0 : c1 - l0]
         oo = op[c0 - l0 : c1 - l0]
         for l in range(c1 - c0):
-            dd[l] = convert(load(ss[l]) + ee[l] + sg * oo[l], dd)
+            dd[l] = convert(max(load(ss[l]) + ee[l] + sg * oo[l], zero), dd)
     c0 = max(a, l1)
     if b > c0:
         _copy(dst[c0 + d : b + d], s[c0:b])
 
 
 @njit(parallel=True, fastmath=True, cache=True)
-def _aa_even(f, rho, rhod, mat, AE, AO, pw, cE, cO, use_src, binf):  # pragma: no cover - compiled
+def _aa_even(f, rho, rhod, mat, Q, pw, cE, cO, use_src, binf, RP):  # pragma: no cover - compiled
     """The even step of the AA pattern, in place: f (natural layout) -> the next state, swapped (module docstring).
 
-    f : (nx, NB, 18, C, G nz, K), the block layout of ``_Operator``; rho, rhod, mat, AE, AO, pw, cE, cO, use_src as
-    in ``_sweep_blocks``; binf : (18, K) the inflow values b_i as stored.
+    f : (nx, NB, 18, C, G nz, K), the block layout of ``_Operator`` (G nz K <= 4096); rho, rhod, mat, pw, cE, cO,
+    use_src as in ``_sweep_blocks``; Q (nmat, C, 30) the collision's symmetry blocks (``_symmetry_blocks``,
+    ``_collide_sym``); binf : (18, K) the inflow values b_i as stored; RP the row distance of the odd step's
+    gathered runs (``sym_row_stride``).
     """
     nx, nb, nq, C, gnz, B = f.shape
     ny = rho.shape[1]
@@ -137,48 +148,44 @@ def _aa_even(f, rho, rhod, mat, AE, AO, pw, cE, cO, use_src, binf):  # pragma: n
     G = gnz // nz
     Lr = nz * B
     R = G * Lr
-    nmat = AE.shape[0]
+    nmat = Q.shape[0]
     f5 = f.reshape((nx, nb, nq, C, R))
     for x in prange(nx):
-        buf = np.empty(2 * NH * R, dtype=rho.dtype)
-        prod = np.empty(2 * NH * R, dtype=rho.dtype)
-        extra = np.empty(2 * NH * R, dtype=rho.dtype)
+        EO = np.empty(4 * NH * SYM_RUN, dtype=rho.dtype)  # E_p, O_p rows (``_collide_run``)
+        zero = np.zeros(1, dtype=rho.dtype)[0]
         rexp = np.empty((nmat, 2, R), dtype=rho.dtype)
         pexp = np.zeros((nmat, C, R if use_src and nmat > 1 else 1), dtype=rho.dtype)
         has = np.zeros(nmat, dtype=np.bool_)
-        ae = np.empty((NH, NH), dtype=rho.dtype)
-        ao = np.empty((NH, NH), dtype=rho.dtype)
         for blk in range(nb):
             y0 = blk * G
             nrows = min(G, ny - y0)
             F = f5[x, blk]
             l0, l1 = _block_occupancy(rho, rhod, mat, pw, x, blk, G, B, use_src, rexp, pexp, has)
             n = l1 - l0
-            Eb = prod[: NH * n].reshape((NH, n))
-            Ob = prod[NH * n : 2 * NH * n].reshape((NH, n))
             for c in range(C):
                 if n > 0:
-                    _collide_block(F, c, l0, n, 0, rexp, has, AE, AO, ae, ao, buf[: NH * n].reshape((NH, n)),
-                                   buf[NH * n : 2 * NH * n].reshape((NH, n)), Eb, Ob, extra, pw, x, blk, pexp, cE, cO, B == 1,
-                                   use_src)
+                    _collide_block_sym(F, c, l0, n, 0, rexp, has, Q, EO, pw, x, blk, pexp, cE, cO, B == 1, use_src)
                 for p in range(NH):
                     a = F[2 * p, c]
                     b = F[2 * p + 1, c]
-                    # slot 2p <- post_2p+1 = f_2p+1 + E_p - O_p, slot 2p+1 <- post_2p = f_2p + E_p + O_p; a node that
-                    # does not collide swaps its pair as stored (no rounding)
+                    # slot 2p <- post_2p+1 = f_2p+1 + E_p - O_p, slot 2p+1 <- post_2p = f_2p + E_p + O_p, no lower than
+                    # 0: for a state f >= 0 the exact value is >= 0 (the update matrix is non-negative, ``lighting.lb``
+                    # "Stability policy") and the symmetry-adapted products leave round-off of either sign (~1e-7
+                    # of the node's values in float32) where it is 0; a node that does not collide swaps its pair
+                    # as stored (no rounding)
                     for l in range(l0):
                         t = a[l]
                         a[l] = b[l]
                         b[l] = t
-                    ep = Eb[p]
-                    op = Ob[p]
+                    ep = EO[p * SYM_RUN : p * SYM_RUN + n]
+                    op = EO[(NH + p) * SYM_RUN : (NH + p) * SYM_RUN + n]
                     aa = a[l0:l1]
                     bb = b[l0:l1]
                     for l in range(n):
                         va = load(aa[l])
                         vb = load(bb[l])
-                        aa[l] = convert(vb + ep[l] - op[l], aa)
-                        bb[l] = convert(va + ep[l] + op[l], bb)
+                        aa[l] = convert(max(vb + ep[l] - op[l], zero), aa)
+                        bb[l] = convert(max(va + ep[l] + op[l], zero), bb)
                     for l in range(l1, nrows * Lr):
                         t = a[l]
                         a[l] = b[l]
@@ -201,7 +208,7 @@ def _aa_even(f, rho, rhod, mat, AE, AO, pw, cE, cO, use_src, binf):  # pragma: n
 
 
 @njit(parallel=True, fastmath=True, cache=True)
-def _aa_odd(f, rho, rhod, mat, AE, AO, pw, cE, cO, use_src, binf):  # pragma: no cover - compiled
+def _aa_odd(f, rho, rhod, mat, Q, pw, cE, cO, use_src, binf, RP):  # pragma: no cover - compiled
     """The odd step of the AA pattern, in place: f (swapped, as ``_aa_even`` left it) -> the next state in the
     natural layout (module docstring). Arguments as ``_aa_even``'s.
 
@@ -216,18 +223,15 @@ def _aa_odd(f, rho, rhod, mat, AE, AO, pw, cE, cO, use_src, binf):  # pragma: no
     G = gnz // nz
     Lr = nz * B
     R = G * Lr
-    nmat = AE.shape[0]
+    nmat = Q.shape[0]
     f5 = f.reshape((nx, nb, nq, C, R))
     for x in prange(nx):
-        buf = np.empty(2 * NH * R, dtype=rho.dtype)
-        prod = np.empty(2 * NH * R, dtype=rho.dtype)
-        extra = np.empty(2 * NH * R, dtype=rho.dtype)
+        EO = np.empty(4 * NH * SYM_RUN, dtype=rho.dtype)  # E_p, O_p rows (``_collide_run``)
+        zero = np.zeros(1, dtype=rho.dtype)[0]
         rexp = np.empty((nmat, 2, R), dtype=rho.dtype)
         pexp = np.zeros((nmat, C, R if use_src and nmat > 1 else 1), dtype=rho.dtype)
         has = np.zeros(nmat, dtype=np.bool_)
-        ae = np.empty((NH, NH), dtype=rho.dtype)
-        ao = np.empty((NH, NH), dtype=rho.dtype)
-        gat = np.empty((nq, C, R), dtype=f.dtype)  # f_i(r) of the block's nodes, gathered (as stored)
+        gat = np.empty((nq, C, RP), dtype=f.dtype)  # f_i(r) of the block's nodes, gathered (as stored)
         sgn = np.empty(2, dtype=rho.dtype)  # +1 / -1 in the arithmetic's dtype (a float64 sign would promote)
         sgn[0] = 1.0
         sgn[1] = -1.0
@@ -236,8 +240,6 @@ def _aa_odd(f, rho, rhod, mat, AE, AO, pw, cE, cO, use_src, binf):  # pragma: no
             nrows = min(G, ny - y0)
             l0, l1 = _block_occupancy(rho, rhod, mat, pw, x, blk, G, B, use_src, rexp, pexp, has)
             n = l1 - l0
-            Eb = prod[: NH * n].reshape((NH, n))
-            Ob = prod[NH * n : 2 * NH * n].reshape((NH, n))
             for c in range(C):
                 # gather f_i(r) from slot (r - c_i, opposite(i)); b_i where r - c_i is outside the grid
                 for i in range(nq):
@@ -273,9 +275,7 @@ def _aa_odd(f, rho, rhod, mat, AE, AO, pw, cE, cO, use_src, binf):  # pragma: no
                         for g in range(nrows):
                             _fill(gi[g * Lr + e : g * Lr + e + B], bi, B)
                 if n > 0:
-                    _collide_block(gat, c, l0, n, 0, rexp, has, AE, AO, ae, ao, buf[: NH * n].reshape((NH, n)),
-                                   buf[NH * n : 2 * NH * n].reshape((NH, n)), Eb, Ob, extra, pw, x, blk, pexp, cE, cO, B == 1,
-                                   use_src)
+                    _collide_block_sym(gat, c, l0, n, 0, rexp, has, Q, EO, pw, x, blk, pexp, cE, cO, B == 1, use_src)
                 # scatter post_i(r) into slot (r + c_i, i); dropped where r + c_i is outside the grid
                 for i in range(nq):
                     tx = x + _CX[i]
@@ -284,8 +284,9 @@ def _aa_odd(f, rho, rhod, mat, AE, AO, pw, cE, cO, use_src, binf):  # pragma: no
                     cy = _CY[i]
                     cz = _CZ[i]
                     bi = binf[i]
-                    ep = Eb[i >> 1]
-                    op = Ob[i >> 1]
+                    p = i >> 1
+                    ep = EO[p * SYM_RUN : p * SYM_RUN + n]
+                    op = EO[(NH + p) * SYM_RUN : (NH + p) * SYM_RUN + n]
                     sg = sgn[i & 1]
                     s = gat[i, c]
                     T = f5[tx, blk, i, c]
@@ -295,7 +296,7 @@ def _aa_odd(f, rho, rhod, mat, AE, AO, pw, cE, cO, use_src, binf):  # pragma: no
                         d = cy * Lr + cz * B  # s[l] -> T[l + d]
                         a = max(ga * Lr, -d)
                         b = min(gb * Lr, R - d)
-                        _put(T, s, d, a, b, l0, l1, ep, op, sg)
+                        _put(T, s, d, a, b, l0, l1, ep, op, sg, zero)
                         if cz != 0:  # the z-face nodes' values landed on inflow slots of the next (previous) row
                             e = (nz - 1) * B if cz > 0 else 0
                             for g in range(ga, gb):
@@ -311,4 +312,4 @@ def _aa_odd(f, rho, rhod, mat, AE, AO, pw, cE, cO, use_src, binf):  # pragma: no
                         if ty < 0 or ty >= ny:
                             continue
                         d = (ty % G - g) * Lr + cz * B
-                        _put(f5[tx, ty // G, i, c], s, d, g * Lr + z0 * B, g * Lr + z1 * B, l0, l1, ep, op, sg)
+                        _put(f5[tx, ty // G, i, c], s, d, g * Lr + z0 * B, g * Lr + z1 * B, l0, l1, ep, op, sg, zero)

@@ -15,7 +15,7 @@ from foliage_tools.lighting.collision import diagonal_density, unit_moving_block
 from foliage_tools.lighting.lattice import DIRECTIONS
 from foliage_tools.lighting.lb.beam import beam_fields
 from foliage_tools.lighting.lb.directions import NQ, power_weights
-from foliage_tools.lighting.lb.kernels_collide import _parity_blocks
+from foliage_tools.lighting.lb.kernels_collide import SYM_RUN, _parity_blocks, _symmetry_blocks, sym_row_stride
 from foliage_tools.lighting.lb.kernels_field import (
     _balance,
     _dot,
@@ -84,7 +84,9 @@ class _Operator:
         self.media = tuple(media)
         A64 = np.stack([unit_moving_block(m, problem.lattice) for m in media])
         self.A = np.ascontiguousarray(A64, dtype=self.dtype)
-        self.AE, self.AO = (np.ascontiguousarray(b, dtype=self.dtype) for b in _parity_blocks(A64))
+        AE64, AO64 = _parity_blocks(A64)
+        self.AE, self.AO = (np.ascontiguousarray(b, dtype=self.dtype) for b in (AE64, AO64))
+        self.Q = np.ascontiguousarray(_symmetry_blocks(AE64, AO64), dtype=self.dtype)  # the in-place sweeps' collision
         self.sig_a = np.array([m.sigma_a for m in media], dtype=np.float64)
         self.bnd = np.array([b.inflow for b in problem.boundaries], dtype=np.float64).T  # (18, K)
         self.binf = np.ascontiguousarray(to_storage(self.bnd, self.storage))  # as stored, for the in-place sweeps
@@ -233,14 +235,17 @@ class _Operator:
 
     @property
     def in_place(self) -> bool:
-        """Whether ``sweep_pair`` runs in place (the block kernel's layout, few right-hand sides)."""
-        return not self.long_rows
+        """Whether plain iteration runs its unmeasured sweeps as in-place pairs (``sweep_pair``): the block kernel's
+        layout (few right-hand sides), and not with fp16 storage, whose plain iteration ends at a fixed point of
+        one rounded map (``solvers._at_storage_floor``), which the pairs' different rounding would not share."""
+        return not self.long_rows and self.L <= SYM_RUN - 16 and self.storage != np.uint16
 
     def sweep_pair(self, f: np.ndarray) -> None:
         """f <- two plain sweeps of f, in place (the AA pattern, ``kernels_inplace``): what two ``sweep`` calls give,
         in one field and with no residual. Block layout only (``in_place``)."""
-        assert self.in_place, "sweep_pair needs the block layout (few right-hand sides)"
-        args = (self.rho, self.rhod, self.mat, self.AE, self.AO, self.pw, self.cE, self.cO, self.use_src, self.binf)
+        assert not self.long_rows and self.L <= SYM_RUN - 16, "sweep_pair needs the block layout (few right-hand sides)"
+        args = (self.rho, self.rhod, self.mat, self.Q, self.pw, self.cE, self.cO, self.use_src, self.binf,
+                sym_row_stride(self.L))
         _aa_even(f, *args)
         _aa_odd(f, *args)
 
