@@ -44,12 +44,18 @@ def _sweep_ordered(f, rho, rhod, mat, AE, AO, forward, pw, cq, use_src):  # prag
         dv = np.empty((NH, K), dtype=rho.dtype)
         ev = np.empty(K, dtype=rho.dtype)
         ov = np.empty(K, dtype=rho.dtype)
+        tbs = np.empty(3, dtype=np.int64)  # block and run offset of rows y - 1, y, y + 1: no division per node
+        tos = np.empty(3, dtype=np.int64)
         for a in range(nx):
             x = a if forward else nx - 1 - a
             for b in range(ny):
                 y = b if forward else ny - 1 - b
                 yb = y // G
                 yo = (y % G) * nz
+                for d in range(3):
+                    ty = min(max(y + d - 1, 0), ny - 1)  # (clamped rows are never targets: checked below)
+                    tbs[d] = ty // G
+                    tos[d] = (ty % G) * nz
                 for e in range(nz):
                     z = e if forward else nz - 1 - e
                     l = yo + z
@@ -61,8 +67,8 @@ def _sweep_ordered(f, rho, rhod, mat, AE, AO, forward, pw, cq, use_src):  # prag
                             tz = z + _CZ[i]
                             if tx < 0 or tx >= nx or ty < 0 or ty >= ny or tz < 0 or tz >= nz:
                                 continue  # the light leaves the grid
-                            tb = ty // G
-                            tl = (ty % G) * nz + tz
+                            tb = tbs[_CY[i] + 1]
+                            tl = tos[_CY[i] + 1] + tz
                             for k in range(K):
                                 f[tx, tb, i, c, tl, k] = f[x, yb, i, c, l, k]
                         continue
@@ -101,6 +107,6 @@ def _sweep_ordered(f, rho, rhod, mat, AE, AO, forward, pw, cq, use_src):  # prag
                         tz = z + _CZ[i]
                         if tx < 0 or tx >= nx or ty < 0 or ty >= ny or tz < 0 or tz >= nz:
                             continue
-                        dst = f[tx, ty // G, i, c, (ty % G) * nz + tz]
+                        dst = f[tx, tbs[_CY[i] + 1], i, c, tos[_CY[i] + 1] + tz]
                         for k in range(K):
                             dst[k] = convert(fl[i, k], dst)
