@@ -18,95 +18,189 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NAXIAL_PAIRS, NH
+from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NH
+from foliage_tools.lighting.lb.kernels_collide import _collide_pairs
 from foliage_tools.lighting.storage import convert, load
 
 
-@njit(parallel=True, fastmath=True, cache=True)
-def _sweep_ordered(f, rho, rhod, mat, AE, AO, forward, pw, cq, use_src):  # pragma: no cover - compiled
-    """One in-place ordered sweep of ``f`` (the block layout of ``_Operator``: (nx, NB, 18, C, G nz, K)).
+@njit(fastmath=True, cache=True)
+def _move_run(src, dst, cz, K, nz, same):  # pragma: no cover - compiled
+    """dst[(z + cz) K + k] = src[z K + k] for every node z whose target z + cz is in the row; ``same``: src and dst are
+    one run (the row's own opposite direction), copied in the order that reads each value before it is overwritten."""
+    z0 = max(0, -cz)
+    z1 = nz - max(0, cz)
+    if same and cz > 0:
+        for z in range(z1 - 1, z0 - 1, -1):
+            for k in range(K):
+                dst[(z + cz) * K + k] = src[z * K + k]
+    else:
+        d = cz * K
+        for l in range(z0 * K, z1 * K):
+            dst[l + d] = src[l]
 
-    Nodes are visited in lexicographic order of (x, y, z) (``forward``) or its reverse; at each occupied
-    node the collision f_i + sum_j A_ij rho_j f_j (the parity split of ``_collide_pairs``: AE, AO (nmat, C,
-    9, 9)) plus, with ``use_src``, the beams' first-collision source cq[m, c, i, k] pw[x, y // G, c, l K + k]
-    is pushed into slot (r + c_i, i) of f itself; an empty node (91 % of a crown's box) only moves its 18
-    values on, copied as stored (no rounding). Inflow slots are never written. Channels run in parallel
-    (independent right-hand sides), the K right-hand sides of a channel are the vector lanes. Convergence
-    is measured by a plain sweep (``_Operator.sweep``), not here.
+
+@njit(parallel=True, fastmath=True, cache=True)
+def _sweep_ordered_rows(f, rho, rhod, mat, A, AE, AO, forward, pw, cE, cO, use_src):  # pragma: no cover - compiled
+    """One in-place ordered sweep of ``f`` (the block layout of ``_Operator``: (nx, NB, 18, C, G nz, K)), a z-row at
+    a time.
+
+    The sweep it computes: nodes visited in lexicographic order of (x, y, z) (``forward``) or its reverse, each
+    occupied node's collision f_i + sum_j A_ij rho_j f_j (A (nmat, C, 18, 18) the unit moving block, rho_j the axial
+    rho or the non-axial rhod; plus, with ``use_src``, the beams' first-collision source) pushed into slot
+    (r + c_i, i) of f itself, an empty node's 18 values moved on as stored; inflow slots never written. Channels
+    run in parallel (independent right-hand sides), the K right-hand sides of a channel are the vector lanes.
+
+    How, a row at a time: within a row only the z-step along the visiting order (+z forward, -z backward:
+    direction ``js``) carries light to a node visited later in the same row; every other slot a node reads holds,
+    when its row is visited, what it would hold when the node itself is (written by earlier rows of this sweep,
+    or left by the last one). So a row's 18 runs are read once; everything but f_js collides for all its nodes at
+    once (the parity split of ``_collide_pairs``: AE, AO (nmat, C, 9, 9); the source's parity parts cE, cO
+    (nmat, C, 9, G nz K) tiled along the run, as ``_Operator`` holds them); then f_js goes node by node in the
+    visiting order, f_js(z + step) = post_js(z), each value rounded as the next node would read it stored, and
+    its column A[:, js] is added to the other directions; then the post-collision runs are pushed into their
+    target rows (into this row for +-z). An empty row only moves its values on, as stored. A node-by-node
+    implementation is the reference of the tests (``test_lb_ordered``). Convergence is measured by a plain sweep
+    (``_Operator.sweep``), not here.
     """
     nx, nb, nq, C, gnz, K = f.shape
     ny = rho.shape[1]
     nz = rho.shape[2]
     G = gnz // nz
+    nmat = AE.shape[0]
+    n = nz * K
+    js = 4 if forward else 5  # direction +z (index 4) or -z (5): the in-row step along the visiting order
+    jo = js ^ 1
+    step = 1 if forward else -1
+    f5 = f.reshape((nx, nb, nq, C, gnz * K))
     for c in prange(C):
-        fl = np.empty((nq, K), dtype=rho.dtype)
-        sv = np.empty((NH, K), dtype=rho.dtype)
-        dv = np.empty((NH, K), dtype=rho.dtype)
-        ev = np.empty(K, dtype=rho.dtype)
-        ov = np.empty(K, dtype=rho.dtype)
-        tbs = np.empty(3, dtype=np.int64)  # block and run offset of rows y - 1, y, y + 1: no division per node
+        V = np.empty((nq, C, n), dtype=rho.dtype)  # the row's values (channel c), f_js zeroed
+        P = np.empty((nq, n), dtype=rho.dtype)  # post-collision values
+        FS = np.empty(n, dtype=rho.dtype)  # f_js arriving at each node
+        col = np.empty((nq, nz), dtype=rho.dtype)  # rho A[m, c, i, js] of each node
+        rexp = np.empty((nmat, 2, n), dtype=rho.dtype)
+        pexp = np.zeros((nmat, C, n if use_src and nmat > 1 else 1), dtype=rho.dtype)
+        has = np.zeros(nmat, dtype=np.bool_)
+        ae = np.empty((NH, NH), dtype=rho.dtype)
+        ao = np.empty((NH, NH), dtype=rho.dtype)
+        Sb = np.empty((NH, n), dtype=rho.dtype)
+        Db = np.empty((NH, n), dtype=rho.dtype)
+        Eb = np.empty((NH, n), dtype=rho.dtype)
+        Ob = np.empty((NH, n), dtype=rho.dtype)
+        extra = np.empty(2 * NH * n, dtype=rho.dtype)
+        tbs = np.empty(3, dtype=np.int64)
         tos = np.empty(3, dtype=np.int64)
+        one = np.ones(1, dtype=rho.dtype)[0]  # (a float64 literal would promote the recurrence)
         for a in range(nx):
             x = a if forward else nx - 1 - a
             for b in range(ny):
                 y = b if forward else ny - 1 - b
                 yb = y // G
-                yo = (y % G) * nz
+                o = (y % G) * n
                 for d in range(3):
                     ty = min(max(y + d - 1, 0), ny - 1)  # (clamped rows are never targets: checked below)
                     tbs[d] = ty // G
-                    tos[d] = (ty % G) * nz
-                for e in range(nz):
-                    z = e if forward else nz - 1 - e
-                    l = yo + z
-                    r = rho[x, y, z]
-                    if r == 0:  # nothing collides: each direction's value moves on as it is stored
-                        for i in range(nq):
-                            tx = x + _CX[i]
-                            ty = y + _CY[i]
-                            tz = z + _CZ[i]
-                            if tx < 0 or tx >= nx or ty < 0 or ty >= ny or tz < 0 or tz >= nz:
-                                continue  # the light leaves the grid
-                            tb = tbs[_CY[i] + 1]
-                            tl = tos[_CY[i] + 1] + tz
-                            for k in range(K):
-                                f[tx, tb, i, c, tl, k] = f[x, yb, i, c, l, k]
-                        continue
-                    for j in range(nq):
-                        for k in range(K):
-                            fl[j, k] = load(f[x, yb, j, c, l, k])
-                    m = mat[x, y, z]
-                    rd = rhod[x, y, z]
-                    for p in range(NH):
-                        rp = r if p < NAXIAL_PAIRS else rd
-                        for k in range(K):
-                            va = fl[2 * p, k]
-                            vb = fl[2 * p + 1, k]
-                            sv[p, k] = rp * (va + vb)
-                            dv[p, k] = rp * (va - vb)
-                    for p in range(NH):
-                        for k in range(K):
-                            ev[k] = 0.0
-                            ov[k] = 0.0
-                        for q in range(NH):
-                            ca = AE[m, c, p, q]
-                            cb = AO[m, c, p, q]
-                            for k in range(K):
-                                ev[k] += ca * sv[q, k]
-                                ov[k] += cb * dv[q, k]
-                        for k in range(K):
-                            fl[2 * p, k] += ev[k] + ov[k]
-                            fl[2 * p + 1, k] += ev[k] - ov[k]
-                    if use_src:
-                        for i in range(nq):
-                            for k in range(K):
-                                fl[i, k] += cq[m, c, i, k] * pw[x, yb, c, l * K + k]
+                    tos[d] = (ty % G) * n
+                rr = rho[x, y]
+                mm = mat[x, y]
+                for m in range(nmat):
+                    has[m] = False
+                for z in range(nz):
+                    if rr[z] > 0:
+                        has[mm[z]] = True
+                occupied = False
+                for m in range(nmat):
+                    occupied = occupied or has[m]
+                if not occupied:  # nothing collides: every value moves on as it is stored
                     for i in range(nq):
                         tx = x + _CX[i]
                         ty = y + _CY[i]
-                        tz = z + _CZ[i]
-                        if tx < 0 or tx >= nx or ty < 0 or ty >= ny or tz < 0 or tz >= nz:
+                        if tx < 0 or tx >= nx or ty < 0 or ty >= ny:
+                            continue  # the light leaves the grid
+                        src = f5[x, yb, i, c, o : o + n]
+                        if i == js:  # along the row in the visiting order: each node passes on what it received
+                            for e in range(nz - 1):
+                                z = e if forward else nz - 1 - e
+                                for k in range(K):
+                                    src[(z + step) * K + k] = src[z * K + k]
                             continue
-                        dst = f[tx, tbs[_CY[i] + 1], i, c, tos[_CY[i] + 1] + tz]
+                        t = tos[_CY[i] + 1]
+                        _move_run(src, f5[tx, tbs[_CY[i] + 1], i, c, t : t + n], _CZ[i], K, nz, i == jo)
+                    continue
+                # the row's densities per material (0 on other materials' nodes) and f_js's column
+                for m in range(nmat):
+                    for z in range(nz):
+                        own = mm[z] == m
+                        v = rr[z] if own else 0.0
+                        vd = rhod[x, y, z] if own else 0.0
                         for k in range(K):
-                            dst[k] = convert(fl[i, k], dst)
+                            rexp[m, 0, z * K + k] = v
+                            rexp[m, 1, z * K + k] = vd
+                            if use_src and nmat > 1:
+                                for cc in range(C):
+                                    pexp[m, cc, z * K + k] = pw[x, yb, cc, o + z * K + k] if own else 0.0
+                for z in range(nz):
+                    m = mm[z]
+                    for i in range(nq):
+                        col[i, z] = rr[z] * A[m, c, i, js]
+                for i in range(nq):
+                    src = f5[x, yb, i, c, o : o + n]
+                    vi = V[i, c]
+                    if i == js:
+                        for l in range(n):
+                            vi[l] = 0.0
+                    else:
+                        for l in range(n):
+                            vi[l] = load(src[l])
+                if nmat == 1:
+                    _collide_pairs(V, c, 0, n, rexp, 0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw[x, yb : yb + 1], o, cE,
+                                   cO, K == 1, use_src)
+                else:
+                    _collide_pairs(V, c, 0, n, rexp, 0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pexp, 0, cE, cO, K == 1,
+                                   use_src)
+                for p in range(NH):
+                    va = V[2 * p, c]
+                    vb = V[2 * p + 1, c]
+                    ep = Eb[p]
+                    op = Ob[p]
+                    pa = P[2 * p]
+                    pb = P[2 * p + 1]
+                    for l in range(n):
+                        pa[l] = va[l] + ep[l] + op[l]
+                        pb[l] = vb[l] + ep[l] - op[l]
+                # f_js node by node in the visiting order, from what the row's first node holds (an inflow slot)
+                first = 0 if forward else nz - 1
+                src = f5[x, yb, js, c, o : o + n]
+                pj = P[js]
+                for k in range(K):
+                    FS[first * K + k] = load(src[first * K + k])
+                for e in range(nz):
+                    z = e if forward else nz - 1 - e
+                    g = one + col[js, z]
+                    for k in range(K):
+                        l = z * K + k
+                        v = pj[l] + g * FS[l]
+                        pj[l] = v
+                        if e + 1 < nz:  # the next node reads it as stored (rounded, with fp16 storage)
+                            FS[(z + step) * K + k] = load(convert(v, src))
+                for i in range(nq):
+                    if i == js:
+                        continue
+                    pi = P[i]
+                    ci = col[i]
+                    for z in range(nz):
+                        w = ci[z]
+                        for k in range(K):
+                            pi[z * K + k] += w * FS[z * K + k]
+                # push the post-collision runs into their target rows
+                for i in range(nq):
+                    tx = x + _CX[i]
+                    ty = y + _CY[i]
+                    if tx < 0 or tx >= nx or ty < 0 or ty >= ny:
+                        continue
+                    t = tos[_CY[i] + 1]
+                    dst = f5[tx, tbs[_CY[i] + 1], i, c, t : t + n]
+                    cz = _CZ[i]
+                    pi = P[i]
+                    d = cz * K
+                    for l in range(max(0, -cz) * K, (nz - max(0, cz)) * K):
+                        dst[l + d] = convert(pi[l], dst)

@@ -25,7 +25,7 @@ from foliage_tools.lighting.lb.kernels_field import (
     _rounding_energy,
 )
 from foliage_tools.lighting.lb.kernels_inplace import _aa_even, _aa_odd
-from foliage_tools.lighting.lb.kernels_ordered import _sweep_ordered
+from foliage_tools.lighting.lb.kernels_ordered import _sweep_ordered_rows
 from foliage_tools.lighting.lb.kernels_sweep import _sweep_blocks, _sweep_rows
 from foliage_tools.lighting.lb.problem import LBProblem
 from foliage_tools.lighting.lb.unscattered import _attenuations, _transmittances
@@ -262,7 +262,8 @@ class _Operator:
 
     def ordered_sweep(self, f: np.ndarray, forward: bool) -> None:
         """f <- one in-place ordered sweep (``kernels_ordered``), forward or backward through the nodes."""
-        _sweep_ordered(f, self.rho, self.rhod, self.mat, self.AE, self.AO, forward, self.pw, self.cq, self.use_src)
+        _sweep_ordered_rows(f, self.rho, self.rhod, self.mat, self.A, self.AE, self.AO, forward, self.pw, self.cE, self.cO,
+                            self.use_src)
 
     def apply(self, v: np.ndarray, out: np.ndarray, wt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """out <- (I - T) v for a vector with zero inflow slots; returns per-rhs (wt . out, out . out)."""
