@@ -117,11 +117,11 @@ def _sweep_ordered_rows(f, rho, rhod, mat, A, AE, AO, forward, pw, cE, cO, use_s
                         if tx < 0 or tx >= nx or ty < 0 or ty >= ny:
                             continue  # the light leaves the grid
                         src = f5[x, yb, i, c, o : o + n]
-                        if i == js:  # along the row in the visiting order: each node passes on what it received
-                            for e in range(nz - 1):
-                                z = e if forward else nz - 1 - e
+                        if i == js:  # along the row in the visiting order each node passes on what it received:
+                            first = 0 if forward else nz - 1  # the row's first node's (inflow) value, everywhere
+                            for z in range(nz):
                                 for k in range(K):
-                                    src[(z + step) * K + k] = src[z * K + k]
+                                    src[z * K + k] = src[first * K + k]
                             continue
                         t = tos[_CY[i] + 1]
                         _move_run(src, f5[tx, tbs[_CY[i] + 1], i, c, t : t + n], _CZ[i], K, nz, i == jo)
