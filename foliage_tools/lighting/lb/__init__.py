@@ -152,8 +152,27 @@ streaming (never stored after collision). Empty parts are copied.
   of the next row) are saved and put back. Sweeping such rows one by one
   runs loops over only 64-128 values, which measured slower at 1-3 rhs.
 
+* In place (``kernels_inplace``, ``_Operator.sweep_pair``): plain
+  iteration's unmeasured sweeps, with short rows and fp32 storage, run in
+  pairs on one field (the AA pattern: the even step writes each node's
+  post-collision values back into its own opposite slots, the odd step
+  gathers along the links and scatters back to where it read), so a pair
+  moves each value once each way with no read-for-ownership of a second
+  field. They collide by symmetry blocks (``_collide_sym``): the moving block
+  commutes with the cube's 48 symmetries, so in symmetry-adapted coordinates
+  of the pair sums and differences (``_symmetry_bases``) its parity halves
+  are 2 x 2 blocks and scalars, 30 multiply-adds where the products take 162,
+  and the post-collision values are clamped at 0 (the exact ones are >= 0;
+  the transforms leave round-off of either sign). fp16 keeps the push sweeps,
+  whose one rounded map its stopping rule relies on.
+
+Ordered sweeps (``kernels_ordered``) work a z-row at a time: within a row only
+the z-step along the visiting order links nodes, so the rest collides
+vectorized over the row and that step goes node by node.
+
 ``_reference_step`` is the plain numpy version of the update on the paper's 19
-directions that both kernels are tested against.
+directions that the push kernels are tested against; the in-place pair is
+tested against two push sweeps, the ordered rows against a node-by-node sweep.
 
 Steady state
 ------------

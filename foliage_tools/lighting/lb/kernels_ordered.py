@@ -33,10 +33,11 @@ def _move_run(src, dst, cz, K, nz, same):  # pragma: no cover - compiled
         for z in range(z1 - 1, z0 - 1, -1):
             for k in range(K):
                 dst[(z + cz) * K + k] = src[z * K + k]
-    else:
-        d = cz * K
-        for l in range(z0 * K, z1 * K):
-            dst[l + d] = src[l]
+    else:  # zero-based views: an index l + d of unknown sign would keep the loop scalar (negative-index wrap)
+        dd = dst[(z0 + cz) * K : (z1 + cz) * K]
+        ss = src[z0 * K : z1 * K]
+        for l in range(dd.size):
+            dd[l] = ss[l]
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -82,10 +83,8 @@ def _sweep_ordered_rows(f, rho, rhod, mat, A, AE, AO, forward, pw, cE, cO, use_s
         has = np.zeros(nmat, dtype=np.bool_)
         ae = np.empty((NH, NH), dtype=rho.dtype)
         ao = np.empty((NH, NH), dtype=rho.dtype)
-        Sb = np.empty((NH, n), dtype=rho.dtype)
-        Db = np.empty((NH, n), dtype=rho.dtype)
-        Eb = np.empty((NH, n), dtype=rho.dtype)
-        Ob = np.empty((NH, n), dtype=rho.dtype)
+        buf = np.empty(2 * NH * n, dtype=rho.dtype)  # S, D and E, O of the occupied run, (9, its length) each
+        prod = np.empty(2 * NH * n, dtype=rho.dtype)
         extra = np.empty(2 * NH * n, dtype=rho.dtype)
         tbs = np.empty(3, dtype=np.int64)
         tos = np.empty(3, dtype=np.int64)
@@ -119,25 +118,39 @@ def _sweep_ordered_rows(f, rho, rhod, mat, A, AE, AO, forward, pw, cE, cO, use_s
                         src = f5[x, yb, i, c, o : o + n]
                         if i == js:  # along the row in the visiting order each node passes on what it received:
                             first = 0 if forward else nz - 1  # the row's first node's (inflow) value, everywhere
-                            for z in range(nz):
-                                for k in range(K):
-                                    src[z * K + k] = src[first * K + k]
+                            for k in range(K):
+                                v = src[first * K + k]
+                                for z in range(nz):
+                                    src[z * K + k] = v
                             continue
                         t = tos[_CY[i] + 1]
                         _move_run(src, f5[tx, tbs[_CY[i] + 1], i, c, t : t + n], _CZ[i], K, nz, i == jo)
                     continue
-                # the row's densities per material (0 on other materials' nodes) and f_js's column
+                # the occupied nodes z0 .. z1 - 1 (only they collide); there the densities per material (0 on other
+                # materials' nodes) and f_js's column
+                z0 = nz
+                z1 = 0
+                for z in range(nz):
+                    if rr[z] > 0:
+                        z0 = min(z0, z)
+                        z1 = z + 1
+                l0 = z0 * K
+                l1 = z1 * K
+                m1 = l1 - l0
+                Sb = buf[: NH * m1].reshape((NH, m1))  # exactly the run's length: _pair_product runs over its columns
+                Db = buf[NH * m1 : 2 * NH * m1].reshape((NH, m1))
+                Eb = prod[: NH * m1].reshape((NH, m1))
+                Ob = prod[NH * m1 : 2 * NH * m1].reshape((NH, m1))
                 for m in range(nmat):
-                    for z in range(nz):
+                    for z in range(z0, z1):
                         own = mm[z] == m
                         v = rr[z] if own else 0.0
                         vd = rhod[x, y, z] if own else 0.0
                         for k in range(K):
                             rexp[m, 0, z * K + k] = v
                             rexp[m, 1, z * K + k] = vd
-                            if use_src and nmat > 1:
-                                for cc in range(C):
-                                    pexp[m, cc, z * K + k] = pw[x, yb, cc, o + z * K + k] if own else 0.0
+                            if use_src and nmat > 1:  # (this channel's only: the others are other threads')
+                                pexp[m, c, z * K + k] = pw[x, yb, c, o + z * K + k] if own else 0.0
                 for z in range(nz):
                     m = mm[z]
                     for i in range(nq):
@@ -152,11 +165,11 @@ def _sweep_ordered_rows(f, rho, rhod, mat, A, AE, AO, forward, pw, cE, cO, use_s
                         for l in range(n):
                             vi[l] = load(src[l])
                 if nmat == 1:
-                    _collide_pairs(V, c, 0, n, rexp, 0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw[x, yb : yb + 1], o, cE,
-                                   cO, K == 1, use_src)
+                    _collide_pairs(V, c, l0, m1, rexp, l0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw[x, yb : yb + 1],
+                                   o + l0, cE, cO, K == 1, use_src)
                 else:
-                    _collide_pairs(V, c, 0, n, rexp, 0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pexp, 0, cE, cO, K == 1,
-                                   use_src)
+                    _collide_pairs(V, c, l0, m1, rexp, l0, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pexp, l0, cE, cO,
+                                   K == 1, use_src)
                 for p in range(NH):
                     va = V[2 * p, c]
                     vb = V[2 * p + 1, c]
@@ -164,9 +177,15 @@ def _sweep_ordered_rows(f, rho, rhod, mat, A, AE, AO, forward, pw, cE, cO, use_s
                     op = Ob[p]
                     pa = P[2 * p]
                     pb = P[2 * p + 1]
-                    for l in range(n):
-                        pa[l] = va[l] + ep[l] + op[l]
-                        pb[l] = vb[l] + ep[l] - op[l]
+                    for l in range(l0):
+                        pa[l] = va[l]
+                        pb[l] = vb[l]
+                    for l in range(m1):
+                        pa[l0 + l] = va[l0 + l] + ep[l] + op[l]
+                        pb[l0 + l] = vb[l0 + l] + ep[l] - op[l]
+                    for l in range(l1, n):
+                        pa[l] = va[l]
+                        pb[l] = vb[l]
                 # f_js node by node in the visiting order, from what the row's first node holds (an inflow slot)
                 first = 0 if forward else nz - 1
                 src = f5[x, yb, js, c, o : o + n]
@@ -200,7 +219,9 @@ def _sweep_ordered_rows(f, rho, rhod, mat, A, AE, AO, forward, pw, cE, cO, use_s
                     t = tos[_CY[i] + 1]
                     dst = f5[tx, tbs[_CY[i] + 1], i, c, t : t + n]
                     cz = _CZ[i]
-                    pi = P[i]
-                    d = cz * K
-                    for l in range(max(0, -cz) * K, (nz - max(0, cz)) * K):
-                        dst[l + d] = convert(pi[l], dst)
+                    z0 = max(0, -cz)  # nodes whose target z + cz is in the row
+                    z1 = nz - max(0, cz)
+                    dd = dst[(z0 + cz) * K : (z1 + cz) * K]
+                    pi = P[i, z0 * K : z1 * K]
+                    for l in range(dd.size):
+                        dd[l] = convert(pi[l], dd)
