@@ -98,6 +98,17 @@ def _collide_block_sym(F, c, la, n, ra, rexp, has, Q, EO, pw, x, blk, pexp, cE, 
 
 
 @njit(fastmath=True, cache=True)
+def _scratch(nmat, C, R, use_src, rho):  # pragma: no cover - compiled
+    """A thread's scratch for blocks of R values: the E_p, O_p rows (``_collide_run``), the densities and beam power
+    per material (``_block_occupancy``), and 0 in the arithmetic's dtype (rho's)."""
+    EO = np.empty(4 * NH * SYM_RUN, dtype=rho.dtype)
+    rexp = np.empty((nmat, 2, R), dtype=rho.dtype)
+    pexp = np.zeros((nmat, C, R if use_src and nmat > 1 else 1), dtype=rho.dtype)
+    has = np.zeros(nmat, dtype=np.bool_)
+    return EO, rexp, pexp, has, np.zeros(1, dtype=rho.dtype)[0]
+
+
+@njit(fastmath=True, cache=True)
 def _fill(run, values, B):  # pragma: no cover - compiled
     """run[j B + k] = values[k] for every node j of the run."""
     for j in range(run.size // B):
@@ -148,14 +159,9 @@ def _aa_even(f, rho, rhod, mat, Q, pw, cE, cO, use_src, binf, RP):  # pragma: no
     G = gnz // nz
     Lr = nz * B
     R = G * Lr
-    nmat = Q.shape[0]
     f5 = f.reshape((nx, nb, nq, C, R))
     for x in prange(nx):
-        EO = np.empty(4 * NH * SYM_RUN, dtype=rho.dtype)  # E_p, O_p rows (``_collide_run``)
-        zero = np.zeros(1, dtype=rho.dtype)[0]
-        rexp = np.empty((nmat, 2, R), dtype=rho.dtype)
-        pexp = np.zeros((nmat, C, R if use_src and nmat > 1 else 1), dtype=rho.dtype)
-        has = np.zeros(nmat, dtype=np.bool_)
+        EO, rexp, pexp, has, zero = _scratch(Q.shape[0], C, R, use_src, rho)
         for blk in range(nb):
             y0 = blk * G
             nrows = min(G, ny - y0)
@@ -223,14 +229,9 @@ def _aa_odd(f, rho, rhod, mat, Q, pw, cE, cO, use_src, binf, RP):  # pragma: no 
     G = gnz // nz
     Lr = nz * B
     R = G * Lr
-    nmat = Q.shape[0]
     f5 = f.reshape((nx, nb, nq, C, R))
     for x in prange(nx):
-        EO = np.empty(4 * NH * SYM_RUN, dtype=rho.dtype)  # E_p, O_p rows (``_collide_run``)
-        zero = np.zeros(1, dtype=rho.dtype)[0]
-        rexp = np.empty((nmat, 2, R), dtype=rho.dtype)
-        pexp = np.zeros((nmat, C, R if use_src and nmat > 1 else 1), dtype=rho.dtype)
-        has = np.zeros(nmat, dtype=np.bool_)
+        EO, rexp, pexp, has, zero = _scratch(Q.shape[0], C, R, use_src, rho)
         gat = np.empty((nq, C, RP), dtype=f.dtype)  # f_i(r) of the block's nodes, gathered (as stored)
         sgn = np.empty(2, dtype=rho.dtype)  # +1 / -1 in the arithmetic's dtype (a float64 sign would promote)
         sgn[0] = 1.0
