@@ -17,8 +17,10 @@ One run prints four tables:
    ``_reference_step`` (float64, 19 directions) on a *uniformly occupied*
    grid (rho = 0.5 at every node, so every node collides; the dense-sphere
    numbers of bench_lb.py skip empty rows), for 1 (sun, one channel), 3 (sun,
-   RGB) and 57 (19 bases, RGB) right-hand sides. MLUPS counts node x rhs
-   updates. Roofline: each node x rhs update reads and writes 19 float32
+   RGB) and 57 (19 bases, RGB) right-hand sides; below each, where the layout
+   allows it (short rows), "in place (AA pair / 2)": the pair of in-place
+   sweeps plain iteration runs between measurements (``_Operator.sweep_pair``),
+   per sweep. MLUPS counts node x rhs updates. Roofline: each node x rhs update reads and writes 19 float32
    densities (the issue's model; the kernel actually stores 18), 152 bytes,
    so the bandwidth-bound rate is B / 152 bytes; "% roof" is the kernel's
    fraction of it. Where a full N^3 field does not fit in memory the kernel
