@@ -60,6 +60,14 @@ def _stop_stalled(checks: list[tuple[int, float]], t: int, now: float, dtype: np
     return True
 
 
+#: Plain iteration runs its unmeasured sweeps as in-place pairs (``_Operator.sweep_pair``) only while the last
+#: measured residual is at least this many machine epsilons of the arithmetic: the pairs collide by other arithmetic
+#: than the measuring push sweeps (``kernels_collide._collide_sym``), ~1e-7 of the field apart per sweep in float32,
+#: which near the round-off floor sets where the residual stalls (tree_small 48^3, ``--solver iterate --tolerance
+#: 3e-8``: stalled at 5.3e-8 with pairs to the end, 3.0e-8 reached with push sweeps alone). 8 eps is 9.5e-7 in float32.
+PAIR_MIN_RESIDUAL_EPS = 8.0
+
+
 def _iterate(
     op: _Operator,
     f: np.ndarray,
@@ -99,6 +107,8 @@ def _iterate(
     ratios: list[np.ndarray] = []
     allowed = np.ones((op.C, op.K), bool)  # right-hand sides extrapolation may still jump
     jumped: np.ndarray | None = None  # residual just before the last jump
+    pair_floor = PAIR_MIN_RESIDUAL_EPS * float(np.finfo(op.dtype).eps)
+
     def measured(t: int) -> bool:
         return (extrapolate and t >= warm) or t % every == 0 or t == budget
 
@@ -107,7 +117,7 @@ def _iterate(
         t += 1
         every_sweep = extrapolate and t >= warm
         check = measured(t)
-        if op.in_place and not check and t < budget and not measured(t + 1):
+        if op.in_place and not check and t < budget and not measured(t + 1) and float(res.max()) >= pair_floor:
             op.sweep_pair(f)  # two unmeasured sweeps in place (the AA pattern): the same state, less memory traffic
             t += 1
             prev_res = None
