@@ -281,7 +281,7 @@ def bench_table(scene: Path, s: BenchStats) -> Table:
                    "switching to BiCGSTAB when convergence is slow (low absorption). ordered / iterate / bicgstab / "
                    "extrapolate: one method alone (README \"LB solvers\").")
 @click.option("--absorption-scale", type=float, default=1.0, show_default=True,
-              help="sigma_a = scale x (1 - r - t). 1 = physical leaf; geist2008 used 0.125.")
+              help="sigma_a = scale x (1 - r - t), scale in (0, 1]. 1 = physical leaf; geist2008 used 0.125.")
 @click.option("--max-sweeps", type=click.IntRange(min=1), default=20000, show_default=True,
               help="Stop after this many lattice sweeps. Short of --tolerance the layer is still written, and the "
                    "command exits 1 (a bake that failed its accuracy check).")
