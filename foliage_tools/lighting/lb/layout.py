@@ -242,8 +242,8 @@ class _Operator:
 
     def sweep_pair(self, f: np.ndarray) -> None:
         """f <- two plain sweeps of f, in place (the AA pattern, ``kernels_inplace``): what two ``sweep`` calls give,
-        in one field and with no residual. Block layout only (``in_place``)."""
-        assert not self.long_rows and self.L <= SYM_RUN - 16, "sweep_pair needs the block layout (few right-hand sides)"
+        to float rounding, in one field and with no residual. Block layout and fp32 storage only (``in_place``)."""
+        assert self.in_place, "sweep_pair needs the block layout (few right-hand sides) and fp32 storage"
         args = (self.rho, self.rhod, self.mat, self.Q, self.pw, self.cE, self.cO, self.use_src, self.binf,
                 sym_row_stride(self.L))
         _aa_even(f, *args)
