@@ -1,8 +1,10 @@
 """The collision of the lattice-Boltzmann sweeps: the parity split of the moving block and its products (numba).
 
 ``_parity_blocks`` splits a moving block over the opposite pairs; ``_collide_pairs`` applies the halves to an
-occupied run through ``_pair_product``; ``_add_squares`` is the ||f||^2 of a measuring sweep. The package
-docstring (``lighting.lb``, "Layout and kernel") describes where they run.
+occupied run through ``_pair_product``; ``_symmetry_blocks`` and ``_collide_sym`` / ``_collide_run`` do the same
+by the cube's symmetry (the in-place sweeps); ``_block_occupancy`` finds a block's occupied run and its densities
+and ``_collide_block`` / ``_collide_block_sym`` collide it; ``_add_squares`` is the ||f||^2 of a measuring sweep.
+The package docstring (``lighting.lb``, "Layout and kernel") describes where they run.
 """
 
 from __future__ import annotations
@@ -218,24 +220,27 @@ def _symmetry_blocks(AE: np.ndarray, AO: np.ndarray) -> np.ndarray:
     return np.concatenate(out, axis=-1)
 
 
-#: Distance between the output rows of ``_collide_sym`` in its scratch array: a compile-time constant (with row
-#: distances known only at run time the vectorizer gave up on the loop's many possible overlaps and it ran scalar),
-#: 16 values more than the longest run (4096, ``layout._BLOCK_VALUES``) so that its 18 rows fall in different L1
-#: sets (rows 16 KiB apart all map to one set: a copy of 18 such rows ran 3-4x slower).
-SYM_RUN = 4096 + 16
+#: The longest run ``_collide_sym`` takes: a block of ``layout._BLOCK_VALUES`` values.
+SYM_MAX_RUN = 4096
 
 
 def sym_row_stride(run: int) -> int:
-    """A row distance (values) >= run for scratch rows read together: a multiple of 1024 values plus 16 (see
-    ``SYM_RUN``)."""
+    """A row distance (values) >= run for scratch rows read together: a multiple of 1024 values plus 16, so that 18
+    rows fall in different L1 sets (rows 16 KiB apart all map to one set: a copy of 18 such rows ran 3-4x slower)."""
     return -(-run // 1024) * 1024 + 16
+
+
+#: Distance between the output rows of ``_collide_sym`` in its scratch array (``sym_row_stride`` of the longest
+#: run), a compile-time constant: with row distances known only at run time the vectorizer gave up on the loop's
+#: many possible overlaps and it ran scalar.
+SYM_RUN = sym_row_stride(SYM_MAX_RUN)
 
 
 @njit(fastmath=True, cache=True)
 def _collide_sym(F, c, l0, n, rexp, r0, m, Q, EO):  # pragma: no cover - compiled
     """E = AE S and O = AO D (``_collide_pairs``) of material m in symmetry-adapted coordinates, in one pass.
 
-    For channel c of the run [l0, l0 + n) of F (18, C, run) (n <= ``SYM_RUN``): S_p = rho_p (f_2p + f_2p+1), D_p =
+    For channel c of the run [l0, l0 + n) of F (18, C, run) (n <= ``SYM_MAX_RUN``): S_p = rho_p (f_2p + f_2p+1), D_p =
     rho_p (f_2p - f_2p+1) (rho_p = rexp[m, 0 | 1, r0 + l], axial | non-axial, 0 off m's nodes), transformed by the
     rows W of ``_symmetry_bases`` (additions), multiplied by the blocks Q[m, c] of ``_symmetry_blocks`` (30
     multiply-adds where the (9 x 9) products take 162) and transformed back by W^T. E_p is written to
@@ -375,3 +380,70 @@ def _collide_run(F, c, l0, n, rexp, r0, has, Q, EO, pexp, p0, cE, cO, one, use_s
         for p in range(NH):
             _add_source(EO[p * SYM_RUN : p * SYM_RUN + n], EO[(NH + p) * SYM_RUN : (NH + p) * SYM_RUN + n], p, c, l0, n, has,
                         pexp, p0, cE, cO, one)
+
+
+@njit(fastmath=True, cache=True)
+def _block_occupancy(rho, rhod, mat, pw, x, blk, G, B, add_src, rexp, pexp, has):  # pragma: no cover - compiled
+    """The occupied run [l0, l1) (flat values: row g, node z, rhs k at (g nz + z) B + k) of block (x, blk) of the
+    block layout, l0 = l1 = 0 if no node is occupied; per material m, has[m] whether m has an occupied node,
+    rexp[m, 0 | 1, : l1 - l0] the axial | non-axial step density on m's nodes (0 elsewhere) and, with ``add_src``
+    and more than one material, pexp[m, c, : l1 - l0] the beams' power pw[x, blk, c] on m's nodes."""
+    ny = rho.shape[1]
+    nz = rho.shape[2]
+    nmat = has.size
+    C = pexp.shape[1]
+    y0 = blk * G
+    nrows = min(G, ny - y0)
+    j0 = -1
+    j1 = -1
+    for m in range(nmat):
+        has[m] = False
+    for g in range(nrows):
+        rr = rho[x, y0 + g]
+        mm = mat[x, y0 + g]
+        for z in range(nz):
+            if rr[z] > 0:
+                if j0 < 0:
+                    j0 = g * nz + z
+                j1 = g * nz + z + 1
+                has[mm[z]] = True
+    if j1 < 0:
+        return 0, 0
+    for m in range(nmat):
+        re = rexp[m, 0]
+        rq = rexp[m, 1]
+        for j in range(j0, j1):
+            g = j // nz
+            z = j - g * nz
+            own = mat[x, y0 + g, z] == m
+            v = rho[x, y0 + g, z] if own else 0.0
+            vd = rhod[x, y0 + g, z] if own else 0.0
+            for b in range(B):
+                re[(j - j0) * B + b] = v
+                rq[(j - j0) * B + b] = vd
+            if add_src and nmat > 1:
+                for cc in range(C):
+                    for b in range(B):
+                        pexp[m, cc, (j - j0) * B + b] = pw[x, blk, cc, j * B + b] if own else 0.0
+    return j0 * B, j1 * B
+
+
+@njit(fastmath=True, cache=True)
+def _collide_block(F, c, la, n, ra, rexp, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw, x, blk, pexp, cE, cO, one, add_src):  # pragma: no cover - compiled
+    """``_collide_pairs`` for channel c of the run [la, la + n) of a block, inside its occupied run: ra = la - l0 is
+    the offset into the densities ``_block_occupancy`` expanded from l0 (the beams' power: pw[x, blk] itself, at
+    la, with one material, else pexp at ra)."""
+    if AE.shape[0] == 1:
+        _collide_pairs(F, c, la, n, rexp, ra, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw[x, blk : blk + 1], la, cE, cO,
+                       one, add_src)
+    else:
+        _collide_pairs(F, c, la, n, rexp, ra, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pexp, ra, cE, cO, one, add_src)
+
+
+@njit(fastmath=True, cache=True)
+def _collide_block_sym(F, c, la, n, ra, rexp, has, Q, EO, pw, x, blk, pexp, cE, cO, one, add_src):  # pragma: no cover - compiled
+    """``_collide_block`` by the symmetry blocks Q (``_collide_run``): E_p, O_p in rows p, 9 + p of EO."""
+    if has.size == 1:
+        _collide_run(F, c, la, n, rexp, ra, has, Q, EO, pw[x, blk : blk + 1], la, cE, cO, one, add_src)
+    else:
+        _collide_run(F, c, la, n, rexp, ra, has, Q, EO, pexp, ra, cE, cO, one, add_src)

@@ -16,8 +16,8 @@ Boundaries as in the push sweep (``lighting.lb``): an inflow slot holds b_i for 
 post_i(r) of a node whose r + c_i is outside the grid into slot (r, opposite(i)), which is the natural layout's
 inflow slot of opposite(i): it puts b back there afterwards (the light left the grid). The odd step takes b_i
 for f_i(r) when r - c_i is outside, and drops post_i(r) when r + c_i is. After a pair the field is in the
-natural layout, every slot as two push sweeps leave it (the same arithmetic on the same values: a test holds
-the two to float rounding).
+natural layout, every slot as two push sweeps leave it to float rounding (the pairs collide by the symmetry
+blocks of ``kernels_collide._collide_sym``, the push sweep by the (9 x 9) products; a test holds the two together).
 """
 
 from __future__ import annotations
@@ -26,75 +26,9 @@ import numpy as np
 from numba import njit, prange
 
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NH
-from foliage_tools.lighting.lb.kernels_collide import SYM_RUN, _collide_pairs, _collide_run
+from foliage_tools.lighting.lb.kernels_collide import SYM_RUN, _block_occupancy, _collide_block_sym
+from foliage_tools.lighting.lb.kernels_stream import _copy, _fill
 from foliage_tools.lighting.storage import convert, load
-
-
-@njit(fastmath=True, cache=True)
-def _block_occupancy(rho, rhod, mat, pw, x, blk, G, B, add_src, rexp, pexp, has):  # pragma: no cover - compiled
-    """The occupied run [l0, l1) (flat values: row g, node z, rhs k at (g nz + z) B + k) of block (x, blk) of the
-    block layout, l0 = l1 = 0 if no node is occupied; per material m, has[m] whether m has an occupied node,
-    rexp[m, 0 | 1, : l1 - l0] the axial | non-axial step density on m's nodes (0 elsewhere) and, with ``add_src``
-    and more than one material, pexp[m, c, : l1 - l0] the beams' power pw[x, blk, c] on m's nodes."""
-    ny = rho.shape[1]
-    nz = rho.shape[2]
-    nmat = has.size
-    C = pexp.shape[1]
-    y0 = blk * G
-    nrows = min(G, ny - y0)
-    j0 = -1
-    j1 = -1
-    for m in range(nmat):
-        has[m] = False
-    for g in range(nrows):
-        rr = rho[x, y0 + g]
-        mm = mat[x, y0 + g]
-        for z in range(nz):
-            if rr[z] > 0:
-                if j0 < 0:
-                    j0 = g * nz + z
-                j1 = g * nz + z + 1
-                has[mm[z]] = True
-    if j1 < 0:
-        return 0, 0
-    for m in range(nmat):
-        re = rexp[m, 0]
-        rq = rexp[m, 1]
-        for j in range(j0, j1):
-            g = j // nz
-            z = j - g * nz
-            own = mat[x, y0 + g, z] == m
-            v = rho[x, y0 + g, z] if own else 0.0
-            vd = rhod[x, y0 + g, z] if own else 0.0
-            for b in range(B):
-                re[(j - j0) * B + b] = v
-                rq[(j - j0) * B + b] = vd
-            if add_src and nmat > 1:
-                for cc in range(C):
-                    for b in range(B):
-                        pexp[m, cc, (j - j0) * B + b] = pw[x, blk, cc, j * B + b] if own else 0.0
-    return j0 * B, j1 * B
-
-
-@njit(fastmath=True, cache=True)
-def _collide_block(F, c, la, n, ra, rexp, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw, x, blk, pexp, cE, cO, one, add_src):  # pragma: no cover - compiled
-    """``_collide_pairs`` for channel c of the run [la, la + n) of a block, inside its occupied run: ra = la - l0 is
-    the offset into the densities ``_block_occupancy`` expanded from l0 (the beams' power: pw[x, blk] itself, at
-    la, with one material, else pexp at ra)."""
-    if AE.shape[0] == 1:
-        _collide_pairs(F, c, la, n, rexp, ra, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pw[x, blk : blk + 1], la, cE, cO,
-                       one, add_src)
-    else:
-        _collide_pairs(F, c, la, n, rexp, ra, has, AE, AO, ae, ao, Sb, Db, Eb, Ob, extra, pexp, ra, cE, cO, one, add_src)
-
-
-@njit(fastmath=True, cache=True)
-def _collide_block_sym(F, c, la, n, ra, rexp, has, Q, EO, pw, x, blk, pexp, cE, cO, one, add_src):  # pragma: no cover - compiled
-    """``_collide_block`` by the symmetry blocks Q (``_collide_run``): E_p, O_p in rows p, 9 + p of EO."""
-    if has.size == 1:
-        _collide_run(F, c, la, n, rexp, ra, has, Q, EO, pw[x, blk : blk + 1], la, cE, cO, one, add_src)
-    else:
-        _collide_run(F, c, la, n, rexp, ra, has, Q, EO, pexp, ra, cE, cO, one, add_src)
 
 
 @njit(fastmath=True, cache=True)
@@ -106,21 +40,6 @@ def _scratch(nmat, C, R, use_src, rho):  # pragma: no cover - compiled
     pexp = np.zeros((nmat, C, R if use_src and nmat > 1 else 1), dtype=rho.dtype)
     has = np.zeros(nmat, dtype=np.bool_)
     return EO, rexp, pexp, has, np.zeros(1, dtype=rho.dtype)[0]
-
-
-@njit(fastmath=True, cache=True)
-def _fill(run, values, B):  # pragma: no cover - compiled
-    """run[j B + k] = values[k] for every node j of the run."""
-    for j in range(run.size // B):
-        for k in range(B):
-            run[j * B + k] = values[k]
-
-
-@njit(fastmath=True, cache=True)
-def _copy(dst, src):  # pragma: no cover - compiled
-    """dst[:] = src for equal-length runs of distinct arrays (a loop: numba's slice assignment checks for overlap)."""
-    for l in range(dst.size):
-        dst[l] = src[l]
 
 
 @njit(fastmath=True, cache=True)
@@ -145,13 +64,12 @@ def _put(dst, s, d, a, b, l0, l1, ep, op, sg, zero):  # pragma: no cover - compi
 
 
 @njit(parallel=True, fastmath=True, cache=True)
-def _aa_even(f, rho, rhod, mat, Q, pw, cE, cO, use_src, binf, RP):  # pragma: no cover - compiled
+def _aa_even(f, rho, rhod, mat, Q, pw, cE, cO, use_src, binf):  # pragma: no cover - compiled
     """The even step of the AA pattern, in place: f (natural layout) -> the next state, swapped (module docstring).
 
-    f : (nx, NB, 18, C, G nz, K), the block layout of ``_Operator`` (G nz K <= 4096); rho, rhod, mat, pw, cE, cO,
+    f : (nx, NB, 18, C, G nz, K), the block layout of ``_Operator`` (G nz K <= ``SYM_MAX_RUN``); rho, rhod, mat, pw, cE, cO,
     use_src as in ``_sweep_blocks``; Q (nmat, C, 30) the collision's symmetry blocks (``_symmetry_blocks``,
-    ``_collide_sym``); binf : (18, K) the inflow values b_i as stored; RP the row distance of the odd step's
-    gathered runs (``sym_row_stride``).
+    ``_collide_sym``); binf : (18, K) the inflow values b_i as stored.
     """
     nx, nb, nq, C, gnz, B = f.shape
     ny = rho.shape[1]
@@ -216,7 +134,8 @@ def _aa_even(f, rho, rhod, mat, Q, pw, cE, cO, use_src, binf, RP):  # pragma: no
 @njit(parallel=True, fastmath=True, cache=True)
 def _aa_odd(f, rho, rhod, mat, Q, pw, cE, cO, use_src, binf, RP):  # pragma: no cover - compiled
     """The odd step of the AA pattern, in place: f (swapped, as ``_aa_even`` left it) -> the next state in the
-    natural layout (module docstring). Arguments as ``_aa_even``'s.
+    natural layout (module docstring). Arguments as ``_aa_even``'s, and RP the row distance of the gathered runs
+    (``sym_row_stride``).
 
     Rows of a block whose neighbour row along c_i is in the same block move as one flat run shifted by
     c_y nz K + c_z K (the z-faces' values wrap into the next or previous row there: gathered ones are replaced by

@@ -20,6 +20,7 @@ from numba import njit, prange
 
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NH
 from foliage_tools.lighting.lb.kernels_collide import _collide_pairs
+from foliage_tools.lighting.lb.kernels_stream import _copy
 from foliage_tools.lighting.storage import convert, load
 
 
@@ -34,10 +35,7 @@ def _move_run(src, dst, cz, K, nz, same):  # pragma: no cover - compiled
             for k in range(K):
                 dst[(z + cz) * K + k] = src[z * K + k]
     else:  # zero-based views: an index l + d of unknown sign would keep the loop scalar (negative-index wrap)
-        dd = dst[(z0 + cz) * K : (z1 + cz) * K]
-        ss = src[z0 * K : z1 * K]
-        for l in range(dd.size):
-            dd[l] = ss[l]
+        _copy(dst[(z0 + cz) * K : (z1 + cz) * K], src[z0 * K : z1 * K])
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -219,9 +217,9 @@ def _sweep_ordered_rows(f, rho, rhod, mat, A, AE, AO, forward, pw, cE, cO, use_s
                     t = tos[_CY[i] + 1]
                     dst = f5[tx, tbs[_CY[i] + 1], i, c, t : t + n]
                     cz = _CZ[i]
-                    z0 = max(0, -cz)  # nodes whose target z + cz is in the row
-                    z1 = nz - max(0, cz)
-                    dd = dst[(z0 + cz) * K : (z1 + cz) * K]
-                    pi = P[i, z0 * K : z1 * K]
+                    za = max(0, -cz)  # nodes whose target z + cz is in the row
+                    zb = nz - max(0, cz)
+                    dd = dst[(za + cz) * K : (zb + cz) * K]
+                    pi = P[i, za * K : zb * K]
                     for l in range(dd.size):
                         dd[l] = convert(pi[l], dd)

@@ -1,7 +1,8 @@
 """Push-streaming pieces of the lattice-Boltzmann sweeps (numba): a run copied, collided or differenced into its target.
 
 ``_stream_piece`` writes one piece of a run in the sweep's mode; ``_stream_segment`` streams a source run into
-a target block of ``_sweep_blocks``, keeping the inflow slots a z-shift wraps into.
+a target block of ``_sweep_blocks``, keeping the inflow slots a z-shift wraps into; ``_copy`` and ``_fill`` are
+the plain run copies of the in-place and ordered sweeps.
 """
 
 from __future__ import annotations
@@ -126,3 +127,18 @@ def _stream_segment(mode, o, s, fo, wo, q1, q2, a, b, d, limit, wrap_z, B, Lr, e
             w = load(oo[l])
             r1[l] += load(ww[l]) * w
             r2[l] += w * w
+
+
+@njit(fastmath=True, cache=True)
+def _fill(run, values, B):  # pragma: no cover - compiled
+    """run[j B + k] = values[k] for every node j of the run."""
+    for j in range(run.size // B):
+        for k in range(B):
+            run[j * B + k] = values[k]
+
+
+@njit(fastmath=True, cache=True)
+def _copy(dst, src):  # pragma: no cover - compiled
+    """dst[:] = src for equal-length runs of distinct arrays (a loop: numba's slice assignment checks for overlap)."""
+    for l in range(dst.size):
+        dst[l] = src[l]

@@ -10,8 +10,7 @@ import numpy as np
 from numba import njit, prange
 
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NAXIAL_PAIRS, NH
-from foliage_tools.lighting.lb.kernels_collide import _add_squares, _collide_pairs
-from foliage_tools.lighting.lb.kernels_inplace import _block_occupancy, _collide_block
+from foliage_tools.lighting.lb.kernels_collide import _add_squares, _block_occupancy, _collide_block, _collide_pairs
 from foliage_tools.lighting.lb.kernels_stream import _stream_piece, _stream_segment
 from foliage_tools.lighting.storage import convert, load
 

@@ -15,7 +15,7 @@ from foliage_tools.lighting.collision import diagonal_density, unit_moving_block
 from foliage_tools.lighting.lattice import DIRECTIONS
 from foliage_tools.lighting.lb.beam import beam_fields
 from foliage_tools.lighting.lb.directions import NQ, power_weights
-from foliage_tools.lighting.lb.kernels_collide import SYM_RUN, _parity_blocks, _symmetry_blocks, sym_row_stride
+from foliage_tools.lighting.lb.kernels_collide import SYM_MAX_RUN, _parity_blocks, _symmetry_blocks, sym_row_stride
 from foliage_tools.lighting.lb.kernels_field import (
     _balance,
     _dot,
@@ -238,16 +238,15 @@ class _Operator:
         """Whether plain iteration runs its unmeasured sweeps as in-place pairs (``sweep_pair``): the block kernel's
         layout (few right-hand sides), and not with fp16 storage, whose plain iteration ends at a fixed point of
         one rounded map (``solvers._at_storage_floor``), which the pairs' different rounding would not share."""
-        return not self.long_rows and self.L <= SYM_RUN - 16 and self.storage != np.uint16
+        return not self.long_rows and self.L <= SYM_MAX_RUN and self.storage != np.uint16
 
     def sweep_pair(self, f: np.ndarray) -> None:
         """f <- two plain sweeps of f, in place (the AA pattern, ``kernels_inplace``): what two ``sweep`` calls give,
         to float rounding, in one field and with no residual. Block layout and fp32 storage only (``in_place``)."""
         assert self.in_place, "sweep_pair needs the block layout (few right-hand sides) and fp32 storage"
-        args = (self.rho, self.rhod, self.mat, self.Q, self.pw, self.cE, self.cO, self.use_src, self.binf,
-                sym_row_stride(self.L))
+        args = (self.rho, self.rhod, self.mat, self.Q, self.pw, self.cE, self.cO, self.use_src, self.binf)
         _aa_even(f, *args)
-        _aa_odd(f, *args)
+        _aa_odd(f, *args, sym_row_stride(self.L))
 
     def rounding(self, f: np.ndarray) -> np.ndarray:
         """(C, K) relative rms error ``sqrt(E[sum e^2] / sum f^2)`` of the rounding to binary16 that the plain sweep
