@@ -387,7 +387,7 @@ def bake_job_options(fn):
 def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float, direct_mode: str,
                 direct_samples: int | None, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
                 volume_purpose: str = "default", portable: bool = False, layer_format: str = "auto",
-                gather: int | None = None, grid_precision: str = "float"):
+                gather: int | None = None, grid_precision: str = "float", portable_root: Path | None = None):
     """The ``BakeParams`` of the bake options' values."""
     from foliage_tools.geometry.sun import parse_sun
     from foliage_tools.pipeline.bake import BakeParams
@@ -396,8 +396,8 @@ def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, 
         optics=leaf_optics_from_flags(leaf_optics, wood_reflectance),
         sun=parse_sun(sun) if sun is not None else None,
         resolution=resolution, with_reference=with_reference, reference_paths=reference_paths,
-        reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples), portable=portable,
-        volume_purpose=volume_purpose, layer_format=layer_format, gather=gather, grid_precision=grid_precision,
+        reference_noise=reference_noise, direct=direct_choice(direct_mode, direct_samples),
+        portable=portable or portable_root is not None, portable_root=portable_root, volume_purpose=volume_purpose, layer_format=layer_format, gather=gather, grid_precision=grid_precision,
     )
 
 
@@ -409,9 +409,12 @@ def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, 
               help="Write the input, flattened into one layer, into OUTDIR (NAME.input.usda, its textures and other files "
                    "copied beside it) and bake that, so OUTDIR can be moved or shipped on its own. Without it the first "
                    "layer sublayers the input by a relative path, and OUTDIR moves only together with the input.")
+@click.option("--portable-root", type=click.Path(path_type=Path, exists=True, file_okay=False), default=None,
+              help="With --portable: copy the files the input names from under this folder (default: the input's own "
+                   "folder; files outside it are named in a warning and not copied). Implies --portable.")
 @common_options
 def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float,
-         portable: bool, layer_format: str, gather: int | None, grid_precision: str, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
+         portable: bool, portable_root: Path | None, layer_format: str, gather: int | None, grid_precision: str, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
          as_json: bool, quiet: bool, verbose: int) -> None:
     """The main job: density, s_max, SPP and LB bakes, a preview (and a speed-vs-error report) into OUTDIR.
 
@@ -431,7 +434,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
                              reference_noise=reference_noise, direct_mode=direct_mode, direct_samples=direct_samples,
                              sun=sun, leaf_optics=leaf_optics, wood_reflectance=wood_reflectance,
                              volume_purpose=volume_purpose, portable=portable, layer_format=layer_format, gather=gather,
-                             grid_precision=grid_precision)
+                             grid_precision=grid_precision, portable_root=portable_root)
 
         def render(report: Report[BakeStats]) -> None:
             d = report.stats["direct"]

@@ -57,6 +57,8 @@ class BakeParams:
     """``--grid-precision`` of the lb stage: its grids on disk as ``float`` or ``half`` (``LBBakeParams.grid_precision``)."""
     portable: bool = False
     """Bake a flattened copy of the input written into OUTDIR (``scene.portable``), so the folder can move on its own."""
+    portable_root: Path | None = None
+    """With ``portable``: the folder whose files the copy may take (default: the input's folder)."""
     layer_format: str = "auto"
     """``--layer-format``: the layers' file format, ``usda`` (text), ``usdc`` (binary crate) or ``auto``
     (:func:`layer_extension`)."""
@@ -147,7 +149,7 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
             from foliage_tools.scene.portable import write_portable_input
 
             progress.step(f"flattening {path} into the output folder (--portable)")
-            copied = write_portable_input(path, commit.staging, report.warnings)
+            copied = write_portable_input(path, commit.staging, report.warnings, root=params.portable_root)
             source = copied[-1]
         stages = _run_stages(source, commit.staging, params, progress, stem=Path(path).stem, ext=ext)
         _name_the_input(stages, commit.staging, path)

@@ -11,6 +11,12 @@ an upstream bake's ``.vdb``) copied beside it as ``<stem>.input.<name>``
 and the paths rewritten to ``./<stem>.input.<name>``. Everything the bake
 refers to is then inside OUTDIR, by paths relative to it.
 
+Only files under the input's own folder (or the folder ``--portable-root``
+names) are copied: an asset path is the input's to write, so an absolute or
+``../`` path, or a symlink under the folder that leads out of it, could
+otherwise make a bake copy any file it can read (``@/etc/passwd@``) into its
+output. Such a path is kept as it is, with a warning naming it.
+
 Flat names, not a subfolder: OUTDIR's files are committed together as one
 result (``scene.atomic``), and the commit moves files of one directory.
 """
@@ -34,15 +40,18 @@ def input_copy_name(path: Path) -> str:
     return f"{Path(path).stem}.input.usda"
 
 
-def write_portable_input(path: Path, directory: Path, warnings: list[str]) -> list[Path]:
+def write_portable_input(path: Path, directory: Path, warnings: list[str], root: Path | None = None) -> list[Path]:
     """Flatten the stage at ``path`` into ``directory`` (a staging directory) with copies of its asset files.
 
-    Returns the files written, the layer last. Asset paths that name no file
-    (a search path, a ``<UDIM>`` pattern, a missing texture) are kept as they
-    are, with a warning that the folder still depends on them.
+    Returns the files written, the layer last. Only regular files under
+    ``root`` (default: the input's folder), symlinks resolved, are copied.
+    Asset paths that name no file (a search path, a ``<UDIM>`` pattern, a
+    missing texture) or a file outside ``root`` are kept as they are, with a
+    warning that the folder still depends on them.
     """
     path = Path(path)
     directory = Path(directory)
+    root = Path(root if root is not None else path.absolute().parent).resolve()
     stage = Usd.Stage.Open(str(path))
     layer = stage.Flatten()
     layer.documentation = stage.GetRootLayer().documentation  # not Flatten's note naming this machine's path
@@ -53,16 +62,20 @@ def write_portable_input(path: Path, directory: Path, warnings: list[str]) -> li
     prefix = Path(path).stem + ".input."
     copies: dict[Path, str] = {}
     written: list[Path] = []
-    outside: set[str] = set()
+    missing: set[str] = set()
+    foreign: set[str] = set()
 
     def localize(asset: str) -> str:
         if not asset:
             return asset
         source = Path(asset)
         if not source.is_absolute() or not source.is_file():  # Flatten made every file path absolute
-            outside.add(asset)
+            missing.add(asset)
             return asset
         source = source.resolve()
+        if not source.is_relative_to(root):
+            foreign.add(asset)
+            return asset
         if source not in copies:
             name = prefix + re.sub(r"[^A-Za-z0-9_.-]", "_", source.name)
             taken = set(copies.values())
@@ -81,9 +94,13 @@ def write_portable_input(path: Path, directory: Path, warnings: list[str]) -> li
     if not layer.Export(str(target)):
         raise OSError(f"cannot write {target}")
     written.append(target)
-    for asset in sorted(outside):
+    for asset in sorted(missing):
         warnings.append(f"--portable: @{asset}@ (named by the input) is not a file that could be copied; the output "
                         "folder still depends on it where it is.")
+    for asset in sorted(foreign):
+        warnings.append(f"--portable: @{asset}@ (named by the input) lies outside @{root}@, so it was not copied; the "
+                        "output folder still depends on it where it is. Move it under that folder, or pass "
+                        "--portable-root with a folder that holds it.")
     return written
 
 
