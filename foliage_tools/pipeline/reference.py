@@ -68,24 +68,63 @@ def noise_warnings(paths: int, noise_rel: float, flag: str = "--paths") -> list[
 PATHS_PER_LEAF = 1000
 
 
+#: A run in which no sun path was scattered onto a leaf reports E_scattered = 0 when that zero is resolved: when the
+#: rule of three (no event in n trials: its rate is below 3/n at 95 % confidence; Hanley and Lippman-Hand 1983) bounds
+#: the scattered light below this share of the direct light on the leaves. 1 %: below the reference's default
+#: per-leaf noise target of a bake (2 %) and every method's measured error, so the zero is as good as any value it
+#: would have written.
+ZERO_SCATTERED_BOUND = 0.01
+
+
+def zero_scattered_bound(res: reference.ReferenceResult, optics: LeafOptics) -> float | None:
+    """When no sun path was scattered onto a leaf although light can scatter: the 95 % upper bound of the scattered
+    light on the leaves as a share of the direct light on them (None otherwise; inf when no path reached a leaf).
+
+    No path of N was scattered onto a leaf, so the share of paths that would be is below 3/N (the rule of three);
+    D of them reached a leaf directly, and a scattering keeps at most a path's weight, so the scattered light is
+    below about 3/D of the direct light. ``hits`` counts arrivals, all of them direct here.
+    """
+    can_scatter = bool(np.any(optics.albedo > 0) or np.any(optics.wood_reflectance > 0))
+    if not can_scatter or np.any(res.e_scattered > 0) or not math.isfinite(float(res.noise_rel)):
+        return None
+    direct = int(np.asarray(res.hits).sum())
+    return 3.0 / direct if direct else math.inf
+
+
+def zero_scattered_note(bound: float, paths: int) -> str:
+    """What a report says of a resolved zero (:func:`zero_scattered_bound` at or below :data:`ZERO_SCATTERED_BOUND`)."""
+    return (f"no sun path of {paths:,} was scattered onto a leaf, so E_scattered is written as 0: at 95 % confidence "
+            f"the scattered light on the leaves is below {bound:.2g} of the direct light (no such hit in {paths:,} "
+            "paths). Leaves that cannot see each other (a single flat leaf, leaves all in one plane) have exactly 0.")
+
+
 def unmeasured(res: reference.ReferenceResult, optics: LeafOptics, flag: str = "--paths") -> str | None:
-    """Why the reference's E_scattered noise cannot be measured (None when it can).
+    """Why the reference's E_scattered cannot be used (None when it can).
 
     The two-halves estimate is 0/0 when no sun path was scattered onto a leaf
     (E_scattered is zero everywhere): it then reads 0, which would pass any
-    noise target although the run holds no information (DESIGN.md section 4:
-    never silently under-sampled). With black leaves and wood nothing can
-    scatter, and zero is the exact answer.
+    noise target although the run may hold no information (DESIGN.md section
+    4: never silently under-sampled). That zero is a result only when it is
+    resolved (:func:`zero_scattered_bound` at most :data:`ZERO_SCATTERED_BOUND`);
+    with black leaves and wood nothing can scatter, and zero is exact.
     """
-    leaves = int(res.e_scattered.shape[0])
-    need = max(100_000, PATHS_PER_LEAF * leaves)
-    can_scatter = bool(np.any(optics.albedo > 0) or np.any(optics.wood_reflectance > 0))
-    if (can_scatter and not np.any(res.e_scattered > 0)) or not math.isfinite(float(res.noise_rel)):
-        lit = "" if np.any(res.e_direct > 0) else " (nor did any reach a leaf directly)"
-        return (f"none of the {int(res.paths):,} sun paths was scattered onto a leaf{lit}, so E_scattered is zero "
-                f"everywhere and its noise cannot be measured. Raise {flag}: about {PATHS_PER_LEAF:,} per leaf "
-                f"({need:,} for these {leaves:,} leaves) gives a per-leaf noise near {NOISE_TARGET}.")
-    return None
+    paths = int(res.paths)
+    if not math.isfinite(float(res.noise_rel)):
+        return f"no sun path was traced, so E_scattered was not measured. Raise {flag} (at least 100,000)."
+    bound = zero_scattered_bound(res, optics)
+    if bound is None or bound <= ZERO_SCATTERED_BOUND:
+        return None
+    if math.isinf(bound):
+        need = max(100_000, 10 * paths)
+        return (f"none of the {paths:,} sun paths reached a leaf, directly or scattered, so E_scattered is not "
+                f"measured. Raise {flag}: at least {need:,}.")
+    # the bound falls as 1/paths (3/D, with D the direct arrivals in proportion to the paths); never advise fewer
+    # paths than ran
+    need = max(2 * paths, int(math.ceil(paths * bound / ZERO_SCATTERED_BOUND / 1e5) * 1e5))
+    return (f"none of the {paths:,} sun paths was scattered onto a leaf: that bounds the scattered light only below "
+            f"{bound:.2g} of the direct light (95 % confidence), too loose to call it zero, so E_scattered cannot be "
+            f"measured from this run. Raise {flag} to at least "
+            f"{need:,}: a zero is reported once the bound is below {ZERO_SCATTERED_BOUND:g}.")
 
 
 def unlit_warnings(res: reference.ReferenceResult, flag: str = "--paths") -> list[str]:
@@ -255,6 +294,9 @@ def reference_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, 
     why = unmeasured(res, params.optics)
     if why:  # DESIGN.md section 3: a bake that failed its own accuracy check; a reference of zeros must not be used
         raise FindingsError(f"accuracy check failed: @{path}@: {why} Nothing was written.")
+    bound = zero_scattered_bound(res, params.optics)
+    if bound is not None:
+        report.warnings.append(zero_scattered_note(bound, int(res.paths)))
     if res.truncated:
         report.warnings.append(f"{res.truncated} path(s) were abandoned after {reference.ReferenceParams().max_events} events.")
     report.warnings.extend(noise_warnings(int(res.paths), float(res.noise_rel)))
