@@ -41,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numba  # noqa: E402
 
-from foliage_tools.lighting.collision import Medium, leaf_medium  # noqa: E402
+from foliage_tools.lighting.lb.collision import Medium, leaf_medium  # noqa: E402
 from foliage_tools.lighting.lb import (  # noqa: E402
     LBParams,
     LBProblem,

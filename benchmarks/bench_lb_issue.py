@@ -64,7 +64,7 @@ sys.path.insert(0, str(REPO))
 import numba
 from numba import njit, prange
 
-from foliage_tools.lighting.collision import Medium, leaf_medium
+from foliage_tools.lighting.lb.collision import Medium, leaf_medium
 from foliage_tools.lighting.lb import (
     LBParams,
     LBProblem,

@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "examples"))
 
 from foliage_tools.lighting import lb  # noqa: E402
-from foliage_tools.lighting.collision import density_from_lad, leaf_medium  # noqa: E402
+from foliage_tools.lighting.lb.collision import density_from_lad, leaf_medium  # noqa: E402
 from foliage_tools.lighting.optics import LeafOptics  # noqa: E402
 from foliage_tools.lighting.phase import canopy_bilambertian_phase  # noqa: E402
 from foliage_tools.lighting.plane_parallel import solve_slab  # noqa: E402

@@ -101,7 +101,7 @@ def main() -> None:
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from foliage_tools.lighting.collision import leaf_medium
+    from foliage_tools.lighting.lb.collision import leaf_medium
     from foliage_tools.lighting.lb import LBProblem, _Operator, sun_boundary
 
     n = 128

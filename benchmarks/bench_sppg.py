@@ -58,7 +58,7 @@ def bake_arrays(tri, centers, normals, sun, up, resolution=64, n_dirs=16, depth=
     from foliage_tools.geometry.voxelize import area_per_voxel, grid_for_bounds
     from foliage_tools.lighting import depth as dp
     from foliage_tools.lighting import gfactor as gf
-    from foliage_tools.lighting import raydepth as rd
+    from foliage_tools.lighting.spp import raydepth as rd
     from foliage_tools.lighting.optics import parse_leaf_optics
 
     optics = parse_leaf_optics(None)
@@ -127,7 +127,7 @@ def depth_comparison(path, rays_per_leaf=1, resolution=64, seed=0, own_removed=T
     False gives the plain grid integral at the leaf centre (own leaf included)."""
     from foliage_tools.lighting import depth as dp
     from foliage_tools.lighting import gfactor as gf
-    from foliage_tools.lighting import raydepth as rd
+    from foliage_tools.lighting.spp import raydepth as rd
     from foliage_tools.params import DensityParams
     from foliage_tools.pipeline.density import compute_density
     from foliage_tools.pipeline.report import Silent

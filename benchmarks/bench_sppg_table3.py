@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools.bench.metrics import binned_rms
-from foliage_tools.lighting import raydepth as rd
+from foliage_tools.lighting.spp import raydepth as rd
 from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.pipeline.bench import depth_thickness
 from foliage_tools.pipeline.direct import DirectChoice, bake_direct

@@ -77,7 +77,7 @@ import numpy as np
 from numba import njit, prange
 
 from foliage_tools.lighting.optics import LeafOptics
-from foliage_tools.lighting.single_scatter import fibonacci_directions
+from foliage_tools.lighting.lb.single_scatter import fibonacci_directions
 
 __all__ = ["DEFAULT_DIRECTIONS", "DEFAULT_RESOLUTION", "DEFAULT_SHIFTS", "SHIFTS", "T_MIN", "FirstOrderInputs", "FirstOrderResult", "solve"]
 

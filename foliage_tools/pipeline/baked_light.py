@@ -125,7 +125,7 @@ def load_lb_bases(path: Path, scene: Scene, warnings: list[str]) -> dict[str, np
     """
     from foliage_tools.geometry.voxelize import GridSpec, area_per_voxel
     from foliage_tools.lighting import lb as lbm
-    from foliage_tools.lighting.collision import Medium, density_from_lad
+    from foliage_tools.lighting.lb.collision import Medium, density_from_lad
     from foliage_tools.pipeline.volumes import volume_path
     from foliage_tools.pipeline.lb import sample_trilinear
     from foliage_tools.scene.primvars import read_volume

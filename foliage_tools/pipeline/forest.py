@@ -52,9 +52,10 @@ from scipy import ndimage
 
 from foliage_tools.geometry.sun import Sun
 from foliage_tools.geometry.voxelize import GridSpec
-from foliage_tools.lighting import lb, single_scatter
+from foliage_tools.lighting import lb
+from foliage_tools.lighting.lb import single_scatter
 from foliage_tools.lighting import stand as placed
-from foliage_tools.lighting.collision import density_from_lad, leaf_medium
+from foliage_tools.lighting.lb.collision import density_from_lad, leaf_medium
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.report import Progress, Silent
 from foliage_tools.pipeline.stats import ForestStats

@@ -44,11 +44,12 @@ from foliage_tools.geometry.sun import Sun
 from foliage_tools.geometry.voxelize import GridSpec, stencil_mask, trilinear_stencil
 from scipy import ndimage
 
-from foliage_tools.lighting import lb, single_scatter
-from foliage_tools.lighting.collision import LATTICES, PHASES, Medium, brown, density_from_lad, leaf_medium
-from foliage_tools.lighting.lattice import UNIT_DIRECTIONS
+from foliage_tools.lighting import lb
+from foliage_tools.lighting.lb import single_scatter
+from foliage_tools.lighting.lb.collision import LATTICES, PHASES, Medium, brown, density_from_lad, leaf_medium
+from foliage_tools.lighting.lb.lattice import UNIT_DIRECTIONS
 from foliage_tools.lighting.optics import LeafOptics
-from foliage_tools.lighting.storage import STORAGES
+from foliage_tools.lighting.lb.storage import STORAGES
 from foliage_tools.params import BASE_EXTENTS, DEFAULT_RESOLUTION, GRID_PRECISIONS, DensityParams, check_resolution
 from foliage_tools.pipeline.density import DensityResult, compute_density, density_for_bake, vdb_path
 from foliage_tools.pipeline.plan import available_memory

@@ -138,7 +138,7 @@ class PlanParams:
 
 def scatterer_pairs(n: int) -> int:
     """(leaf, scatterer) pairs lighting.scatterer_sun sums for n leaves (all, or the nearest and a subset)."""
-    from foliage_tools.lighting.scatterer_sun import MAX_PAIRS, MIN_FAR, NEAR
+    from foliage_tools.lighting.envelope.scatterer_sun import MAX_PAIRS, MIN_FAR, NEAR
 
     if n * n <= MAX_PAIRS:
         return n * n

@@ -7,7 +7,7 @@ scattered light's first order is the leaves' exact direct light scattered once
 and marched through a voxel medium of the leaves (``--scatter march``,
 :mod:`foliage_tools.lighting.first_order`, as ``spp`` and ``lb`` take it), and
 the later orders are counted by the envelope's recollision probability
-(:func:`foliage_tools.lighting.boulanger.higher_orders`); ``--scatter leaves``
+(:func:`foliage_tools.lighting.envelope.boulanger.higher_orders`); ``--scatter leaves``
 lights the thesis' one-bounce scatterers by the leaves' exact lit fractions
 instead, and ``paper`` is the thesis' eq. (5.24).
 """
@@ -25,7 +25,8 @@ import numpy as np
 
 from foliage_tools import __version__
 from foliage_tools.geometry.sun import Sun, to_prototype_space
-from foliage_tools.lighting import boulanger, envelope, scatterer_sun
+from foliage_tools.lighting import envelope
+from foliage_tools.lighting.envelope import boulanger, scatterer_sun
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.pipeline.forest import forest_light
 from foliage_tools.pipeline.instances import bake_instance_edits, from_prototypes

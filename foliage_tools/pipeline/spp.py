@@ -53,7 +53,7 @@ from foliage_tools.errors import UsageError
 from foliage_tools.geometry.sun import Sun, to_prototype_space
 from foliage_tools.lighting import depth as depth_mod
 from foliage_tools.lighting import gfactor as gf
-from foliage_tools.lighting import raydepth as rd
+from foliage_tools.lighting.spp import raydepth as rd
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.lighting.phase import canopy_bilambertian_phase
 from foliage_tools.params import DEFAULT_RESOLUTION, DensityParams, check_resolution

@@ -10,7 +10,7 @@ import numpy as np
 
 from foliage_tools.geometry.rays import RayScene
 from foliage_tools.lighting import depth as depth_mod
-from foliage_tools.lighting import raydepth as rd
+from foliage_tools.lighting.spp import raydepth as rd
 from foliage_tools.pipeline.density import DensityResult
 from foliage_tools.scene.model import Scene
 

@@ -244,7 +244,7 @@ class Renderer:
         """steele2010 sec. 3.1 per instance: the hull face hit by the light's travel direction in the instance's
         frame and its barycentric weights (lattice.barycentric_weights), written to the instance buffer."""
         from foliage_tools.geometry.sun import to_prototype_space
-        from foliage_tools.lighting.lattice import barycentric_weights
+        from foliage_tools.lighting.lb.lattice import barycentric_weights
 
         # _upload gives every draw its transforms, and lb_inst with lb_tex (render calls this only with lb_tex)
         assert draw.transforms is not None and draw.lb_inst is not None
@@ -453,7 +453,7 @@ class Renderer:
         with eq. (5.29) for ``lighting.sky_radiance`` and the optics' ground reflectance).
         The main pass adds ``scattered_*`` times the sun's irradiance to the leaves.
         """
-        from foliage_tools.lighting.boulanger import sky_radiance_per_direction
+        from foliage_tools.lighting.envelope.boulanger import sky_radiance_per_direction
 
         optics = optics or SurfaceOptics()
         prog = self._program("smaxfeedback")

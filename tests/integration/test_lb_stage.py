@@ -51,7 +51,7 @@ def test_sun_bake_writes_grid_and_primvars(tmp_path):
     # green leaves scatter most in G (geist2008 Table 1 optics)
     assert scattered[:, 1].mean() > scattered[:, 0].mean() > scattered[:, 2].mean()
     # the medium the grids were solved with is recorded on the volume (sigma_a + sigma_s = 1 at absorption scale 1)
-    from foliage_tools.lighting.collision import leaf_medium
+    from foliage_tools.lighting.lb.collision import leaf_medium
 
     vol = stage.GetPrimAtPath("/Tree/FoliageLighting")
     med = leaf_medium(parse_leaf_optics(None), absorption_scale=1.0)
@@ -291,7 +291,7 @@ def test_primvar_light_records_its_sun_and_the_preview_warns_when_drawn_under_an
 def test_preview_relights_the_bases_and_reproduces_the_baked_sun(tmp_path):
     """The preview's lb bases (grids + recomputed never-scattered part), blended for the bake's own sun
     in the prototype frame, give the lbIndirect the bake wrote at every leaf vertex."""
-    from foliage_tools.lighting.lattice import barycentric_weights
+    from foliage_tools.lighting.lb.lattice import barycentric_weights
     from foliage_tools.pipeline.baked_light import corner_values, load_lb_bases
     from foliage_tools.scene.primvars import read_mesh_primvars
     from foliage_tools.scene.read import read_scene

@@ -195,7 +195,7 @@ def test_scattered_light_against_the_reference_and_the_papers_own(smax_out, tmp_
     from the written s_max and tau, and reads 0.84 of the reference here."""
     from pxr import Usd, UsdGeom
 
-    from foliage_tools.lighting import boulanger
+    from foliage_tools.lighting.envelope import boulanger
     from foliage_tools.pipeline.reference import ReferenceParams, bake_reference
     from foliage_tools.pipeline.report import Silent
     from foliage_tools.pipeline.stage import begin_bake

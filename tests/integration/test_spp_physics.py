@@ -67,7 +67,7 @@ from scipy.spatial import ConvexHull
 from foliage_tools.bench.metrics import binned_rms
 from foliage_tools.lighting import depth as dp
 from foliage_tools.lighting import gfactor as gf
-from foliage_tools.lighting import raydepth as rd
+from foliage_tools.lighting.spp import raydepth as rd
 from foliage_tools.lighting.optics import parse_leaf_optics
 from foliage_tools.params import DensityParams
 from foliage_tools.pipeline.bench import depth_thickness

@@ -1,4 +1,4 @@
-"""Boulanger's lighting model (foliage_tools.lighting.boulanger) against its own derivation.
+"""Boulanger's lighting model (foliage_tools.lighting.envelope.boulanger) against its own derivation.
 
 Appendix B and eqs. (5.15)-(5.24) are checked against numerical quadrature
 (scipy.integrate) of the integrals they simplify; the model as a whole is
@@ -15,8 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy import integrate
 
-from foliage_tools.lighting import boulanger as bl
-from foliage_tools.lighting.boulanger import BoulangerParams, solve
+from foliage_tools.lighting.envelope import boulanger as bl
+from foliage_tools.lighting.envelope.boulanger import BoulangerParams, solve
 from foliage_tools.lighting.envelope import EnvelopeParams, sample_directions
 from foliage_tools.lighting.envelope import solve as solve_envelope
 
@@ -549,7 +549,7 @@ def test_mirror_symmetric_crown_under_a_zenith_sun_gives_mirror_symmetric_light(
     np.testing.assert_allclose(env.smax[n:][:, mirrored], env.smax[:n], rtol=1e-5, atol=1e-7)
     t_bar = None
     if scatter == "leaves":
-        from foliage_tools.lighting.scatterer_sun import scatterer_transmission
+        from foliage_tools.lighting.envelope.scatterer_sun import scatterer_transmission
 
         t_bar = scatterer_transmission(centres, np.exp(-(1.0 - centres[:, 2])), env.tau, up=UP, leaf_size=0.1)
     r = solve(normals, env.smax, env.tau, up=UP, params=BoulangerParams(

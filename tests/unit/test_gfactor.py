@@ -857,7 +857,7 @@ def test_once_scattered_share_against_the_isotropic_slabs_first_order():
     from scipy.integrate import quad
 
     from foliage_tools.lighting.phase import hg_phase
-    from foliage_tools.lighting.slab_table import leaf_weights
+    from foliage_tools.lighting.spp.slab_table import leaf_weights
 
     mu0, tau, omega = 0.6, 2.0, 0.9
     t = np.array([0.1, 0.5, 1.0, 1.5, 1.9])
@@ -887,7 +887,7 @@ def test_g_orders_in_solve_sppg():
         res = gf.solve_sppg(s, **kw, params=gf.SPPGParams(model=model, g_orders=True))
         np.testing.assert_array_equal(res.spp.scattered, base.spp.scattered)
         np.testing.assert_array_equal(res.sppg.direct, base.sppg.direct)
-        from foliage_tools.lighting.slab_table import leaf_weights
+        from foliage_tools.lighting.spp.slab_table import leaf_weights
 
         phases = [canopy_bilambertian_phase(reflectance=r, transmittance=t)
                   for r, t in zip(OPTICS.reflectance, OPTICS.transmittance)]

@@ -1,4 +1,4 @@
-"""D3Q19 lattice and relighting hull (foliage_tools.lighting.lattice)."""
+"""D3Q19 lattice and relighting hull (foliage_tools.lighting.lb.lattice)."""
 
 import itertools
 import math
@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import ConvexHull
 
-from foliage_tools.lighting import lattice as L
+from foliage_tools.lighting.lb import lattice as L
 
 unit_vectors = st.tuples(*[st.floats(-1, 1, allow_nan=False)] * 3).filter(lambda v: np.linalg.norm(v) > 1e-3)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from foliage_tools.lighting.collision import Medium, brown, unit_moving_block
+from foliage_tools.lighting.lb.collision import Medium, brown, unit_moving_block
 from foliage_tools.lighting.lb import LBParams, LBProblem, _Operator, base_boundary, solve, sun_boundary, sun_source
 from foliage_tools.lighting.lb.kernels_collide import (
     _EVEN_SLOTS,
@@ -19,7 +19,7 @@ from foliage_tools.lighting.lb.kernels_collide import (
     _symmetry_blocks,
 )
 from foliage_tools.lighting.lb.layout import _BLOCK_VALUES
-from foliage_tools.lighting.storage import from_storage
+from foliage_tools.lighting.lb.storage import from_storage
 
 
 def _problem(rng, shape, bounds, lattice="ordinates"):
@@ -137,7 +137,7 @@ def test_pairs_leave_the_round_off_floor_to_the_push_sweeps(rng):
     """Near float32's round-off floor the pairs' other arithmetic would set where the residual stalls (this problem:
     at 5.2e-8 with pairs to the end, against 3.0e-8 with push sweeps alone; tree_small at 48^3 likewise): plain
     iteration stops pairing below ``PAIR_MIN_RESIDUAL_EPS`` eps, and reaches the tolerance 3e-8 push sweeps reach."""
-    from foliage_tools.lighting.collision import leaf_medium
+    from foliage_tools.lighting.lb.collision import leaf_medium
 
     rho = np.zeros((40, 40, 40))
     occupied = rng.uniform(size=rho.shape) < 0.15

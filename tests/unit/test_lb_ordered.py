@@ -7,7 +7,7 @@ import pytest
 
 from numba import njit
 
-from foliage_tools.lighting.collision import Medium, brown
+from foliage_tools.lighting.lb.collision import Medium, brown
 from foliage_tools.lighting.lb import (
     LBParams,
     LBProblem,
@@ -20,7 +20,7 @@ from foliage_tools.lighting.lb import (
 )
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NAXIAL_PAIRS, NH
 from foliage_tools.lighting.lb.kernels_ordered import _sweep_ordered_rows
-from foliage_tools.lighting.storage import convert, from_storage, load
+from foliage_tools.lighting.lb.storage import convert, from_storage, load
 
 
 def _problem(kind: str) -> LBProblem:

@@ -50,8 +50,8 @@ import pytest
 from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
-from foliage_tools.lighting.collision import Medium, step_density, unit_moving_block
-from foliage_tools.lighting.lattice import DIRECTIONS, direction_index
+from foliage_tools.lighting.lb.collision import Medium, step_density, unit_moving_block
+from foliage_tools.lighting.lb.lattice import DIRECTIONS, direction_index
 from foliage_tools.lighting.lb import (
     LatticeStabilityError,
     LBParams,

@@ -42,8 +42,8 @@ import pytest
 from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
-from foliage_tools.lighting.collision import Medium, source_weights, step_density, unit_moving_block
-from foliage_tools.lighting.lattice import DIRECTIONS, STEP_LENGTHS
+from foliage_tools.lighting.lb.collision import Medium, source_weights, step_density, unit_moving_block
+from foliage_tools.lighting.lb.lattice import DIRECTIONS, STEP_LENGTHS
 from foliage_tools.lighting.lb import LBParams, LBProblem, solve, sun_source
 from foliage_tools.lighting.phase import canopy_bilambertian_phase
 from foliage_tools.lighting.plane_parallel import solve_slab

@@ -21,7 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from foliage_tools.errors import UsageError
-from foliage_tools.lighting.collision import (
+from foliage_tools.lighting.lb.collision import (
     GEIST2008_LEAF,
     LEAF_ANGLE_G,
     LeafOptics,
@@ -38,7 +38,7 @@ from foliage_tools.lighting.collision import (
     diagonal_density,
     unit_moving_block,
 )
-from foliage_tools.lighting.lattice import (
+from foliage_tools.lighting.lb.lattice import (
     DIRECTIONS,
     OPPOSITE,
     ORDINATE_WEIGHTS,
@@ -728,7 +728,7 @@ def test_unscattered_start_reaches_the_same_steady_state_in_fewer_sweeps():
 
 def test_parity_blocks_reproduce_the_collision_and_refuse_asymmetric_blocks(rng):
     """The kernel's even/odd split over opposite pairs is exact for geist2008's Omega, refused otherwise."""
-    from foliage_tools.lighting.collision import unit_moving_block
+    from foliage_tools.lighting.lb.collision import unit_moving_block
     from foliage_tools.lighting.lb import _parity_blocks
 
     A = unit_moving_block(Medium(sigma_a=(0.1, 0.4), sigma_s=(0.85, 0.5), g=(0.6, -1.0)))  # (C, 18, 18)

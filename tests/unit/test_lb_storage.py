@@ -1,4 +1,4 @@
-"""fp16 storage of the LB densities (foliage_tools.lighting.storage, ``LBParams.storage``): bounds and why.
+"""fp16 storage of the LB densities (foliage_tools.lighting.lb.storage, ``LBParams.storage``): bounds and why.
 
 * Storage round trip: binary16 of f * 2^8 keeps 11 significant bits for f in [2^-22, 255.9]
   (relative error <= 2^-11, round to nearest) and is a fixed-point number of step 2^-32 below
@@ -23,7 +23,7 @@ import pytest
 from numba import njit
 
 from foliage_tools.errors import UsageError
-from foliage_tools.lighting.collision import Medium, brown, leaf_medium
+from foliage_tools.lighting.lb.collision import Medium, brown, leaf_medium
 from foliage_tools.lighting.lb import (
     LBParams,
     LBProblem,
@@ -33,7 +33,7 @@ from foliage_tools.lighting.lb import (
     sun_boundary,
     sun_source,
 )
-from foliage_tools.lighting.storage import FP16_SCALE_EXP, convert, from_storage, load, to_storage
+from foliage_tools.lighting.lb.storage import FP16_SCALE_EXP, convert, from_storage, load, to_storage
 
 HALF_ULP = 2.0**-11  # binary16: 11 significant bits, round to nearest
 SUBNORMAL_STEP = 2.0 ** -(24 + FP16_SCALE_EXP)  # the spacing of binary16 subnormals, in f
@@ -199,7 +199,7 @@ def test_fp16_relightable_bake_is_within_the_rounding_bound_leaf_by_leaf():
     from pathlib import Path
 
     from foliage_tools.lighting import lb
-    from foliage_tools.lighting.collision import density_from_lad
+    from foliage_tools.lighting.lb.collision import density_from_lad
     from foliage_tools.lighting.optics import parse_leaf_optics
     from foliage_tools.params import DensityParams
     from foliage_tools.pipeline.density import compute_density
@@ -331,7 +331,7 @@ def test_plain_fp16_sweeps_that_stall_at_the_rounding_level_converge_as_ordered_
     stalled failure (exit 1) for the same state that ordered sweeps pass."""
     from pathlib import Path
 
-    from foliage_tools.lighting.collision import density_from_lad
+    from foliage_tools.lighting.lb.collision import density_from_lad
     from foliage_tools.lighting.optics import parse_leaf_optics
     from foliage_tools.params import DensityParams
     from foliage_tools.pipeline.density import compute_density

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from foliage_tools.geometry.sun import to_prototype_space
-from foliage_tools.lighting.lattice import barycentric_weights
+from foliage_tools.lighting.lb.lattice import barycentric_weights
 from foliage_tools.preview.camera import direction_from_angles, orbit_camera
 from foliage_tools.preview.renderer import DrawMesh, DrawPrototype, DrawScene, Lighting, Renderer
 from tests.helpers.crowns import OPTICS, crown

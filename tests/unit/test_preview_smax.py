@@ -4,7 +4,7 @@ boulanger2008 ch. 5, Algorithms 11-13: the previewer evaluates the sky, direct-s
 one-bounce terms per vertex from s_max and τ (shaders/boulanger.glsl). These tests read
 the shader's per-vertex irradiance back by transform feedback
 (:meth:`Renderer.smax_irradiance`) and hold it to
-:mod:`foliage_tools.lighting.boulanger` evaluated in float64, for instances that rotate
+:mod:`foliage_tools.lighting.envelope.boulanger` evaluated in float64, for instances that rotate
 and scale the tree and for suns exactly on, midway between, and away from the ω_j.
 
 Tolerance: float32 evaluation of sums of 8 non-negative terms of O(1) magnitude with
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from foliage_tools.geometry.sun import to_prototype_space
-from foliage_tools.lighting import boulanger
+from foliage_tools.lighting.envelope import boulanger
 from foliage_tools.lighting.envelope import EnvelopeParams, sample_directions
 from foliage_tools.lighting.envelope import solve as envelope_solve
 from foliage_tools.preview.camera import direction_from_angles, orbit_camera

@@ -17,7 +17,7 @@ import pytest
 
 from foliage_tools.geometry.rays import RayScene
 from foliage_tools.geometry.voxelize import area_per_voxel, grid_for_bounds
-from foliage_tools.lighting import raydepth as rd
+from foliage_tools.lighting.spp import raydepth as rd
 from foliage_tools.lighting.depth import DepthSamples, optical_depth, own_leaf_depth
 from foliage_tools.lighting.gfactor import sample_directions, solve_sppg
 from foliage_tools.lighting.optics import parse_leaf_optics

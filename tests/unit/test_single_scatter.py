@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from scipy import integrate, special
 
-from foliage_tools.lighting import lb, single_scatter as ss
-from foliage_tools.lighting.collision import Medium
+from foliage_tools.lighting import lb
+from foliage_tools.lighting.lb import single_scatter as ss
+from foliage_tools.lighting.lb.collision import Medium
 
 
 def _slab(nz=10, ext=0.15, n=81, omega=0.2, elevation=60.0, g=0.0, phase="hg"):

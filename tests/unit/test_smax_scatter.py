@@ -12,11 +12,11 @@ import math
 import numpy as np
 import pytest
 
-from foliage_tools.lighting import boulanger as bl
+from foliage_tools.lighting.envelope import boulanger as bl
 from foliage_tools.lighting import direct, reference
 from foliage_tools.lighting import envelope
 from foliage_tools.lighting.optics import LeafOptics
-from foliage_tools.lighting.scatterer_sun import scatterer_transmission
+from foliage_tools.lighting.envelope.scatterer_sun import scatterer_transmission
 
 UP = (0.0, 0.0, 1.0)
 SUN = np.array([math.cos(math.radians(60)) * math.cos(math.radians(45)),

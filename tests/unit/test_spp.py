@@ -41,7 +41,7 @@ from foliage_tools.lighting.phase import (
     legendre_table,
 )
 from foliage_tools.lighting.plane_parallel import solve_slab
-from foliage_tools.lighting.slab_table import TAU_MAX, TAU_RATIO, leaf_kernel, slab_table
+from foliage_tools.lighting.spp.slab_table import TAU_MAX, TAU_RATIO, leaf_kernel, slab_table
 
 # --------------------------------------------------------------------------
 # helpers

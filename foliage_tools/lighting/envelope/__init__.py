@@ -23,7 +23,11 @@ module per part:
 * ``projection`` -- the far field's linear fit of a leaf's projected area over
   an octant;
 * ``far_field`` -- the far field: cloud-in-cell deposits, FFT correlations
-  with the octants' kernels, interpolation back to the leaves.
+  with the octants' kernels, interpolation back to the leaves;
+* ``boulanger`` -- the thesis' lighting of each leaf from its distances: direct
+  sky and sun, one-bounce sun light and the higher orders;
+* ``scatterer_sun`` -- the sun at a leaf's scatterers per octant, from the
+  neighbours' exact lit fractions (eq. (5.20)).
 
 Measurements behind some defaults (machine timings, settings tried) are in
 ``docs/envelope_notes.md``.

@@ -27,7 +27,7 @@ Per leaf of unit normal n, both faces summed:
 * ``scattered``, plane-parallel part (``SPPGParams.model``):
 
   - ``"exact"`` (the default, issue #15): the exact plane-parallel solution of
-    the same slab (:mod:`~foliage_tools.lighting.slab_table`: the project's
+    the same slab (:mod:`~foliage_tools.lighting.spp.slab_table`: the project's
     discrete-ordinate solver, tabulated once per optics and light cosine over
     a ladder of thicknesses), looked up per leaf at the vertical optical
     depth t = μ0 u and thickness τ = μ0 U, and integrated against the leaf's
@@ -42,7 +42,7 @@ Per leaf of unit normal n, both faces summed:
     slab is exactly plane-parallel: τ = 1.5, r = t = 0.45, elevation 60°,
     five depth bins: -52, -52, -50, -47, -40 % against the exact solution;
     85°: -57 .. -48 %; 30° (2μ0 = 1): -18 .. 0 %
-    (:mod:`~foliage_tools.lighting.slab_table` explains why).
+    (:mod:`~foliage_tools.lighting.spp.slab_table` explains why).
 * SPPG: ``scattered`` × G (shinya2013 eq. (28) with I0 = the attenuated direct
   light, which contains no scattered light: I_G = G I_pp + (1 - G) I0 leaves the
   direct part unchanged and scales the scattered part by G), for either model

@@ -1,5 +1,5 @@
 """The plane-parallel part of the scattered light per leaf (``SPPGParams.model``): the exact slab's tables looked up
-per leaf (:mod:`~foliage_tools.lighting.slab_table`) and the SPP closed form's refined radiance (shinya2013 app. A.1)
+per leaf (:mod:`~foliage_tools.lighting.spp.slab_table`) and the SPP closed form's refined radiance (shinya2013 app. A.1)
 integrated over each leaf's two faces. Package docstring (:mod:`foliage_tools.lighting.gfactor`), "Geometry and
 normalisation".
 """
@@ -12,7 +12,7 @@ import numpy as np
 
 from foliage_tools.lighting.gfactor.directions import _frame
 from foliage_tools.lighting.gfactor.params import EXACT_STREAMS, SPPGParams
-from foliage_tools.lighting.slab_table import slab_table
+from foliage_tools.lighting.spp.slab_table import slab_table
 from foliage_tools.lighting.spp import forward_fraction, refined_parts
 
 
@@ -75,7 +75,7 @@ def _exact_leaf_irradiance(u, big_u, mu, weights, albedo, phases) -> np.ndarray:
 
     Slant depth u and thickness U along the light (shinya2013 eq. (29)) are the
     vertical optical depth and thickness t = μ u, τ = μ U of the local slab;
-    ``weights`` = :func:`~foliage_tools.lighting.slab_table.leaf_weights` of |n · up| per leaf.
+    ``weights`` = :func:`~foliage_tools.lighting.spp.slab_table.leaf_weights` of |n · up| per leaf.
     """
     t = mu * np.asarray(u, dtype=np.float64)
     tau = mu * np.asarray(big_u, dtype=np.float64)

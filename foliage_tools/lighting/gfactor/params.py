@@ -35,7 +35,7 @@ class SPPGParams:
     ``model`` is None)."""
     model: str | None = None
     """Plane-parallel part of the scattered light: ``"exact"`` (the exact slab
-    solution looked up per leaf, :mod:`~foliage_tools.lighting.slab_table`) or
+    solution looked up per leaf, :mod:`~foliage_tools.lighting.spp.slab_table`) or
     ``"spp"`` (shinya2013's closed form, eqs. (17)-(22)). None: ``"spp"`` if
     ``refine`` else ``"exact"``."""
     sky: bool = True

@@ -17,7 +17,7 @@ from foliage_tools.lighting.gfactor.orders import _all_over_first, _once_scatter
 from foliage_tools.lighting.gfactor.params import EXACT_STREAMS, LeafIrradiance, SPPGParams, SPPGResult
 from foliage_tools.lighting.optics import LeafOptics
 from foliage_tools.lighting.phase import canopy_bilambertian_phase
-from foliage_tools.lighting.slab_table import leaf_weights
+from foliage_tools.lighting.spp.slab_table import leaf_weights
 from foliage_tools.lighting.spp import forward_fraction, spp_field
 
 

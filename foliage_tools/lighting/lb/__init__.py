@@ -217,8 +217,12 @@ BiCGSTAB. Tighten the tolerance (float64 for < 1e-7) when the error matters.
 
 Modules
 -------
-One per concept (issue #20); this package re-exports what callers use.
-``boundaries`` (the right-hand sides), ``problem`` (``LBProblem``, ``LBParams``,
+One per concept; this package re-exports what callers use. The medium:
+``lattice`` (the D3Q19 directions, weights and step lengths), ``collision``
+(the scattering kernel Omega, geist2008 eqs. (5)-(9), and the medium from the
+leaves' optics), ``storage`` (fp32/fp16 field storage for the numba kernels)
+and ``single_scatter`` (the exact once-scattered light and the lattice's
+correction to it). The solver: ``boundaries`` (the right-hand sides), ``problem`` (``LBProblem``, ``LBParams``,
 ``LBResult``, the errors), ``directions`` (the 18 stored directions,
 ``power_weights``), the numba kernels ``kernels_collide`` (parity-split
 collision), ``kernels_stream`` (streaming pieces), ``kernels_sweep`` (the fused

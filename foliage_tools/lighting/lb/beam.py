@@ -11,9 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from foliage_tools.lighting.collision import source_weights
+from foliage_tools.lighting.lb.collision import source_weights
 from foliage_tools.lighting.depth import _march
-from foliage_tools.lighting.lattice import STEP_LENGTHS
+from foliage_tools.lighting.lb.lattice import STEP_LENGTHS
 from foliage_tools.lighting.lb.directions import NQ
 from foliage_tools.lighting.lb.problem import LBProblem
 

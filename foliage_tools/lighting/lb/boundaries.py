@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from foliage_tools.lighting.lattice import UNIT_DIRECTIONS, barycentric_weights
+from foliage_tools.lighting.lb.lattice import UNIT_DIRECTIONS, barycentric_weights
 from foliage_tools.lighting.lb.directions import NQ
 
 

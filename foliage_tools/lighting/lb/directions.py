@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from foliage_tools.lighting.collision import LATTICES
-from foliage_tools.lighting.lattice import DIRECTIONS, STEP_LENGTHS
+from foliage_tools.lighting.lb.collision import LATTICES
+from foliage_tools.lighting.lb.lattice import DIRECTIONS, STEP_LENGTHS
 
 NQ = 18  # moving directions 1..18 stored at index q = i - 1
 _CX = np.ascontiguousarray(DIRECTIONS[1:, 0])

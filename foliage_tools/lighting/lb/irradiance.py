@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from foliage_tools.lighting.lattice import barycentric_weights
+from foliage_tools.lighting.lb.lattice import barycentric_weights
 
 
 def leaf_irradiance(energy_density):

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from foliage_tools.lighting.lattice import DIRECTIONS, OPPOSITE
+from foliage_tools.lighting.lb.lattice import DIRECTIONS, OPPOSITE
 from foliage_tools.lighting.lb.directions import NAXIAL_PAIRS, NH, NQ
-from foliage_tools.lighting.storage import load
+from foliage_tools.lighting.lb.storage import load
 
 
 def _parity_blocks(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit, prange
 
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NAXIAL_PAIRS, NQ
-from foliage_tools.lighting.storage import convert, load
+from foliage_tools.lighting.lb.storage import convert, load
 
 
 @njit(parallel=True, cache=True)

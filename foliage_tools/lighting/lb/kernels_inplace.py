@@ -28,7 +28,7 @@ from numba import njit, prange
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NH
 from foliage_tools.lighting.lb.kernels_collide import SYM_RUN, _block_occupancy, _collide_block_sym
 from foliage_tools.lighting.lb.kernels_stream import _copy, _fill
-from foliage_tools.lighting.storage import convert, load
+from foliage_tools.lighting.lb.storage import convert, load
 
 
 @njit(fastmath=True, cache=True)

@@ -21,7 +21,7 @@ from numba import njit, prange
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NH
 from foliage_tools.lighting.lb.kernels_collide import _collide_pairs
 from foliage_tools.lighting.lb.kernels_stream import _copy
-from foliage_tools.lighting.storage import convert, load
+from foliage_tools.lighting.lb.storage import convert, load
 
 
 @njit(fastmath=True, cache=True)

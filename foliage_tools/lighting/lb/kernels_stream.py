@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from foliage_tools.lighting.storage import convert, load
+from foliage_tools.lighting.lb.storage import convert, load
 
 
 @njit(fastmath=True, cache=True)

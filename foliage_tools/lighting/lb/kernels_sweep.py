@@ -12,7 +12,7 @@ from numba import njit, prange
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NAXIAL_PAIRS, NH
 from foliage_tools.lighting.lb.kernels_collide import _add_squares, _block_occupancy, _collide_block, _collide_pairs
 from foliage_tools.lighting.lb.kernels_stream import _stream_piece, _stream_segment
-from foliage_tools.lighting.storage import convert, load
+from foliage_tools.lighting.lb.storage import convert, load
 
 #: ``_sweep_rows``: occupied runs at least this long collide by the parity-split products, shorter ones by the hand loop.
 _LONG_RUN_MIN = 256

@@ -11,8 +11,8 @@ from typing import Literal, overload
 
 import numpy as np
 
-from foliage_tools.lighting.collision import diagonal_density, unit_moving_block
-from foliage_tools.lighting.lattice import DIRECTIONS
+from foliage_tools.lighting.lb.collision import diagonal_density, unit_moving_block
+from foliage_tools.lighting.lb.lattice import DIRECTIONS
 from foliage_tools.lighting.lb.beam import beam_fields
 from foliage_tools.lighting.lb.directions import NQ, power_weights
 from foliage_tools.lighting.lb.kernels_collide import SYM_MAX_RUN, _parity_blocks, _symmetry_blocks, sym_row_stride
@@ -29,7 +29,7 @@ from foliage_tools.lighting.lb.kernels_ordered import _sweep_ordered_rows
 from foliage_tools.lighting.lb.kernels_sweep import _sweep_blocks, _sweep_rows
 from foliage_tools.lighting.lb.problem import LBProblem
 from foliage_tools.lighting.lb.unscattered import _attenuations, _transmittances
-from foliage_tools.lighting.storage import HALF_ROUNDING_VARIANCE, from_storage, storage_dtype, to_storage
+from foliage_tools.lighting.lb.storage import HALF_ROUNDING_VARIANCE, from_storage, storage_dtype, to_storage
 
 #: Rows of nz K values at least this long (many right-hand sides) are swept one row at a time (``_sweep_rows``);
 #: shorter ones in blocks of ``_BLOCK_VALUES`` // (nz K) rows (``_sweep_blocks``), so that its loops run over

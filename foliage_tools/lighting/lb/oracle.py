@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from foliage_tools.lighting.collision import unit_moving_block
-from foliage_tools.lighting.lattice import DIRECTIONS
+from foliage_tools.lighting.lb.collision import unit_moving_block
+from foliage_tools.lighting.lb.lattice import DIRECTIONS
 from foliage_tools.lighting.lb.beam import beam_fields
 from foliage_tools.lighting.lb.directions import NQ, power_weights
 from foliage_tools.lighting.lb.problem import LBProblem
@@ -29,7 +29,7 @@ def _reference_step(f: np.ndarray, problem: LBProblem) -> tuple[np.ndarray, np.n
     ``step_density`` of the problem's lattice: on ``geist2008`` this is f + rho Omega f of eqs.
     (5)-(9) with f_0 removed), plus the first-collision source of any beam (``beam_fields``).
     """
-    from foliage_tools.lighting.collision import step_density
+    from foliage_tools.lighting.lb.collision import step_density
 
     rho = problem.density
     assert problem.brown_medium is not None  # LBProblem.__post_init__ defaults it to brown(medium)

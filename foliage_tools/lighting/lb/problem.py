@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from foliage_tools.errors import UsageError
-from foliage_tools.lighting.collision import LATTICES, Medium, brown, diagonal_density
+from foliage_tools.lighting.lb.collision import LATTICES, Medium, brown, diagonal_density
 from foliage_tools.lighting.lb.boundaries import Boundary
-from foliage_tools.lighting.storage import STORAGES
+from foliage_tools.lighting.lb.storage import STORAGES
 
 SOLVERS = ("auto", "iterate", "bicgstab", "extrapolate", "ordered")
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from foliage_tools.lighting.collision import diagonal_density
+from foliage_tools.lighting.lb.collision import diagonal_density
 from foliage_tools.lighting.lb.beam import beam_fields
 from foliage_tools.lighting.lb.directions import _CX, _CY, _CZ, NQ
 from foliage_tools.lighting.lb.problem import LBProblem

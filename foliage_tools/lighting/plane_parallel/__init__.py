@@ -107,7 +107,7 @@ from foliage_tools.lighting.plane_parallel.modes import resonance_offsets as res
 from foliage_tools.lighting.plane_parallel.solution import SlabSolution
 from foliage_tools.lighting.plane_parallel.solver import solve_slab, solve_slab_diffuse
 
-# private parts that foliage_tools/lighting/slab_table.py and tests/unit/test_plane_parallel.py reach as
+# private parts that foliage_tools/lighting/spp/slab_table.py and tests/unit/test_plane_parallel.py reach as
 # ``plane_parallel._name`` (re-exported so that they keep working; the code itself imports them from their modules)
 from foliage_tools.lighting.plane_parallel.eigen import _eigen as _eigen
 from foliage_tools.lighting.plane_parallel.eigen import _Setup as _Setup

@@ -118,7 +118,7 @@ because it divides an RMS *radiance* difference by the total *power*
 score 1.8-4.7 % in that metric (benchmarks/bench_spp_tables.py) and 20-48 %
 as a relative error of the scalar flux. The per-leaf default of
 :func:`~foliage_tools.lighting.gfactor.solve_sppg` is therefore the exact
-slab solution (:mod:`~foliage_tools.lighting.slab_table`); this closed form
+slab solution (:mod:`~foliage_tools.lighting.spp.slab_table`); this closed form
 stays available as ``SPPGParams(model="spp")``.
 
 Differences from the printed paper (each checked by substitution in the tests)
@@ -152,7 +152,11 @@ Modules
   fraction T(μ), and its quadrature on graded meshes;
 * ``fields`` -- the public fields: :class:`SPPField`, :func:`spp_field`,
   :func:`spp_single_scattering`, :class:`RefinedParts`,
-  :func:`refined_parts`, :func:`refined_radiance`, and their input checks.
+  :func:`refined_parts`, :func:`refined_radiance`, and their input checks;
+* ``raydepth`` -- optical depth and thickness from leaf intersection counts
+  along rays through the actual geometry (eq. (29), ray path);
+* ``slab_table`` -- the exact plane-parallel scattered light per leaf,
+  tabulated in slab thickness (the ``exact`` model of SPP and SPPG).
 
 Pure numpy + numba; no files, no printing.
 """

@@ -1,5 +1,5 @@
 // Boulanger's per-leaf tree lighting, evaluated per vertex (boulanger2008 ch. 5, sec. 5.6,
-// Algorithms 8-14). Mirrors foliage_tools/lighting/boulanger.py function by function, and
+// Algorithms 8-14). Mirrors foliage_tools/lighting/envelope/boulanger.py function by function, and
 // returns irradiance on the leaf's front and back faces, as the Python model does; the
 // fragment shader turns it into radiance with eq. (5.4) (Algorithm 10's rho_f, rho_b).
 //

@@ -1,6 +1,6 @@
 // Transform feedback: every term of Boulanger's model (boulanger.glsl) at every vertex of
 // every instance, as the main pass evaluates it, read back by Renderer.smax_irradiance so
-// tests can hold the shader to foliage_tools/lighting/boulanger.py. Preceded by
+// tests can hold the shader to foliage_tools/lighting/envelope/boulanger.py. Preceded by
 // boulanger.glsl.
 
 uniform vec3 u_sun_dir;            // world, toward the sun

@@ -16,7 +16,7 @@ Two departures from the thesis, each an option of :func:`solve` (the paper's
 model is the default there; ``foliage smax`` uses both, ``--scatter paper``
 the thesis alone): the sun at the scatterers from the leaves' exact lit
 fractions instead of eq. (5.24)'s linear envelope
-(:mod:`foliage_tools.lighting.scatterer_sun`, which measures why), and the
+(:mod:`foliage_tools.lighting.envelope.scatterer_sun`, which measures why), and the
 light scattered more than once (:func:`higher_orders`), which the thesis
 leaves out.
 
@@ -332,7 +332,7 @@ def sun_indirect_irradiance(normals, smax, tau, light_dir, optics, directions, *
     s φ(G3 s) apart is the same product without the 0/0. A G1 uses A ρ = 2 τ
     (eq. (5.5)), so only τ enters.
 
-    With ``scatterer_sun`` (T̄_j of :mod:`foliage_tools.lighting.scatterer_sun`,
+    With ``scatterer_sun`` (T̄_j of :mod:`foliage_tools.lighting.envelope.scatterer_sun`,
     the sun's transmission at the scatterers of each octant from the leaves'
     exact lit fractions) eq. (5.20) is evaluated as I = T̄_j E_sun s_j φ(τ s_j)
     instead: no linear envelope, no eq. (5.7) attenuation.
@@ -411,7 +411,7 @@ def solve(normals, smax, tau, *, up=(0.0, 0.0, 1.0), params: BoulangerParams, sc
           all_orders: bool = False) -> LightingResult:
     """Per-leaf direct, scattered and sky irradiance of one tree (boulanger2008 sec. 5.3-5.4).
 
-    The paper's model with the defaults; ``scatterer_sun`` (:mod:`foliage_tools.lighting.scatterer_sun`) takes
+    The paper's model with the defaults; ``scatterer_sun`` (:mod:`foliage_tools.lighting.envelope.scatterer_sun`) takes
     the sun at the scatterers from the leaves' exact lit fractions (:func:`sun_indirect_irradiance`) and
     ``all_orders`` scales the one-bounce light by :func:`higher_orders` for the light scattered more than once.
 

@@ -62,9 +62,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.rays import RayScene, unit_rows
-from ..geometry.rays import count_crossings as crossing_counts  # one implementation, in geometry.rays
-from .depth import DepthSamples
+from foliage_tools.geometry.rays import RayScene, unit_rows
+from foliage_tools.geometry.rays import count_crossings as crossing_counts  # one implementation, in geometry.rays
+from foliage_tools.lighting.depth import DepthSamples
 
 __all__ = [
     "CROSSING_DEPTH",

@@ -87,8 +87,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .phase import PhaseFunction
-from .plane_parallel import (
+from foliage_tools.lighting.phase import PhaseFunction
+from foliage_tools.lighting.plane_parallel import (
     _eigen,
     _norm_assoc_legendre,
     _Setup,

@@ -127,7 +127,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from foliage_tools.lighting.lattice import DIRECTIONS, MULTIPLICITY, ORDINATE_WEIGHTS, STEP_LENGTHS, UNIT_DIRECTIONS, WEIGHTS
+from foliage_tools.lighting.lb.lattice import DIRECTIONS, MULTIPLICITY, ORDINATE_WEIGHTS, STEP_LENGTHS, UNIT_DIRECTIONS, WEIGHTS
 from foliage_tools.lighting.optics import LeafOptics, parse_leaf_optics
 
 __all__ = [

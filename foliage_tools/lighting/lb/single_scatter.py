@@ -55,7 +55,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from foliage_tools.lighting.collision import _bilambertian, _check_phase, _hg_relative
+from foliage_tools.lighting.lb.collision import _bilambertian, _check_phase, _hg_relative
 from foliage_tools.lighting.depth import _next_boundary
 
 __all__ = ["DEFAULT_DIRECTIONS", "T_MIN", "fibonacci_directions", "once_scattered_energy"]
