@@ -447,7 +447,7 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
               help="SPPG's once-scattered sun light: march (each leaf's exact direct light marched through the leaves) "
                    "or slab (the slab's first order times G, eq. 28). [default: march with --g-orders, slab without]")
 @click.option("--g-resolution", "g_resolution", type=click.IntRange(min=0), default=None,
-              help="Grid cells along the longest foliage edge of the coarse grid G's depths are measured through; 0: each "
+              help="Cells along the longest edge of the coarse grid through which G's depths are measured; 0: each "
                    "leaf's own depths. [default: 16 with --model exact, 0 with spp]")
 @click.option("--depth-resolution", "depth_resolution", default="auto", show_default=True, metavar="auto|N",
               callback=parse_depth_resolution,

@@ -26,7 +26,7 @@ TUTORIAL = REPO / "docs" / "tutorial.md"
 #: small image
 FAST = {
     "foliage bake": "--resolution 16 --direct-samples 64 --gather 64",
-    "foliage preview": "--size 96x96 --samples 1 --sky-samples 0",
+    "foliage preview": "--size 96x96 --samples 1 --sky-samples 0 --shadow-size 256",
 }
 
 
