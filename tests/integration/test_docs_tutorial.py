@@ -1,6 +1,6 @@
 """The tutorial works as written: every ```sh snippet of docs/tutorial.md runs, in order, in one shell, from a
 fresh folder laid out as a checkout beside the project's shared/ folder, and leaves the files the tutorial says
-it makes.
+it makes. So does the README's quick start.
 
 The default run adds small-resolution options to the bake and the preview (so it takes seconds, not minutes);
 the slow one runs every command exactly as the page prints it. `foliage` is the real command
@@ -22,6 +22,7 @@ from tests.conftest import ASSETS
 
 REPO = Path(__file__).resolve().parents[2]
 TUTORIAL = REPO / "docs" / "tutorial.md"
+README = REPO / "README.md"
 #: options appended to a command of the tutorial for the fast run: the same steps on coarse grids, fewer rays, a
 #: small image
 FAST = {
@@ -35,9 +36,13 @@ def snippets(text: str) -> list[str]:
     return re.findall(r"^```sh\n(.*?)^```", text, flags=re.S | re.M)
 
 
-def _script(fast: bool) -> str:
+def _script(fast: bool, page: Path = TUTORIAL) -> str:
+    text = page.read_text(encoding="utf-8")
+    if page == README:  # its quick start only (the install commands are the Makefile's)
+        text = text[text.index("## Quick start"):]
+        text = text[:text.index("\n## ", 1)]
     lines = []
-    for block in snippets(TUTORIAL.read_text(encoding="utf-8")):
+    for block in snippets(text):
         for line in block.splitlines():
             command = line.split("#")[0].rstrip()
             if fast:
@@ -49,7 +54,7 @@ def _script(fast: bool) -> str:
     return "set -euo pipefail\n" + "\n".join(lines) + "\n"
 
 
-def _run_tutorial(tmp_path: Path, fast: bool) -> tuple[Path, subprocess.CompletedProcess]:
+def _run_tutorial(tmp_path: Path, fast: bool, page: Path = TUTORIAL) -> tuple[Path, subprocess.CompletedProcess]:
     if not (ASSETS / "webots_oak" / "oak.obj").exists():
         pytest.skip(f"third-party assets not present at {ASSETS}")
     repo = tmp_path / "checkout"
@@ -63,7 +68,7 @@ def _run_tutorial(tmp_path: Path, fast: bool) -> tuple[Path, subprocess.Complete
     env = dict(os.environ, PATH=f"{bin_dir}{os.pathsep}{os.environ['PATH']}",
                XDG_CACHE_HOME=str(tmp_path / "cache"), PYTHONPATH=os.pathsep.join(
                    p for p in (str(REPO), os.environ.get("PYTHONPATH", "")) if p))
-    r = subprocess.run(["bash", "-c", _script(fast)], cwd=repo, env=env, capture_output=True, text=True, timeout=1800)
+    r = subprocess.run(["bash", "-c", _script(fast, page)], cwd=repo, env=env, capture_output=True, text=True, timeout=1800)
     return repo, r
 
 
@@ -98,3 +103,11 @@ def test_every_command_of_the_tutorial_runs_on_small_grids(tmp_path):
 @pytest.mark.slow
 def test_every_command_of_the_tutorial_runs_exactly_as_written(tmp_path):
     _check(*_run_tutorial(tmp_path, fast=False))
+
+
+def test_the_readme_quick_start_runs_on_small_grids(tmp_path):
+    repo, r = _run_tutorial(tmp_path, fast=True, page=README)
+    assert r.returncode == 0, f"stdout:\n{r.stdout}\nstderr:\n{r.stderr}"
+    out = repo / "out"
+    for name in ("oak.usda", "oak.png", "oak_baked/oak.lb.usda", "oak_baked/oak.png"):
+        assert (out / name).is_file(), name
