@@ -8,7 +8,7 @@ EXAMPLE := examples/tree_small.usda
 DEMO    := out/demo
 OAK     := ../shared/assets/webots_oak/oak.usda
 
-.PHONY: setup setup-bpy demo lint test test-dcc test-slow bench clean
+.PHONY: setup setup-bpy demo lint test test-dcc test-slow docs bench clean
 
 setup: $(STAMP)
 
@@ -51,6 +51,11 @@ $(BPY_VENV)/.installed:
 test-slow: setup
 	$(PY) -m pytest -m slow -q
 
+# the documentation (mkdocs.yml; the CLI reference generated from the click commands by mkdocs-click) into
+# site/ (git-ignored); --strict turns every warning, a broken link between pages included, into a failure
+docs: setup
+	$(PY) -m mkdocs build --strict --site-dir site
+
 # Speed studies (not tests): each script prints its own table. Run one with
 # `make bench BENCH=density` (density, lb, lb_issue, lb_storage, lb_grid_precision, smax, reference, reference_noise, direct, preview, spp_tables, sppg, forest, batch).
 BENCH ?= density lb lb_issue lb_storage smax reference reference_noise direct preview spp_tables sppg forest batch
@@ -63,4 +68,4 @@ bench: setup
 	@if [ -f $(OAK) ]; then echo "== speed vs error on the Webots oak (foliage bench)"; $(FOLIAGE) bench $(OAK); fi
 
 clean:
-	rm -rf out .pytest_cache
+	rm -rf out site .pytest_cache

@@ -16,6 +16,7 @@ from foliage_tools.cli.common import (
     leaf_optics_from_flags, run,
     grid_precision_option, setup_logging, volume_purpose_option,
 )
+from foliage_tools.cli.helpformat import FoliageCommand
 from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE
 
 if TYPE_CHECKING:
@@ -34,25 +35,18 @@ def _eight_directions(ctx: click.Context, param: click.Parameter, value: int) ->
     return value
 
 
-@click.command()
+@click.command(cls=FoliageCommand, common=("--output", "--sun"))
 @SCENE
 @OUT
 @click.option("--directions", type=int, default=8, show_default=True, callback=_eight_directions,
-              help="Sample directions ω_j per leaf. Only 8, the cube diagonals of eq. 5.28, is defined: each bins "
-                   "the octant around it, and the primvars hold 8 values per leaf.")
+              help="Sample directions per leaf: only 8, the cube diagonals of boulanger2008 eq. 5.28.")
 @click.option("--path", "path_", type=click.Choice(["auto", "reference", "fast"]), default="auto", show_default=True,
-              help="reference: the thesis' O(N²) neighbour binning (sec. 5.6); fast: exact near sums + FFT far field; "
+              help="reference: the thesis' O(N²) neighbour binning; fast: exact near sums + FFT far field; "
                    "auto: reference below 20k leaves.")
 @click.option("--scatter", type=click.Choice(["march", "leaves", "paper"]), default="march", show_default=True,
-              help="How E_scattered is lit. march: the first order of scattering is each leaf's exact direct light "
-                   "(the shadow rays, traced even with --direct volume) scattered once and marched through a 32-voxel "
-                   "medium of the leaves, as spp and lb take it, the later orders counted by the envelope's "
-                   "recollision probability p = 1 - mean exp(-tau s_max): per leaf 0.14 / 0.20 / 0.21 on the README's "
-                   "three trees; leaves: the thesis' one bounce with the sun at each leaf's scatterers from the "
-                   "neighbours' exact lit fractions, the same later orders (0.19 / 0.28 / 0.35); paper: "
-                   "boulanger2008's one bounce alone (eq. 5.24), whose linear envelope darkens the scatterers: "
-                   "0.6-0.74 of the reference's scattered light on those trees. Recorded as foliage:smax:scatter on "
-                   "the tree prim.")
+              help="How E_scattered is lit. march: each leaf's exact direct light scattered once and marched through the "
+                   "leaves, later orders by the envelope's recollision probability; leaves: the thesis' one bounce lit "
+                   "by the neighbours' exact lit fractions; paper: eq. 5.24 alone. The docs compare their accuracy.")
 @direct_options
 @bake_options
 @common_options
@@ -99,16 +93,15 @@ def smax_table(report: Report[SmaxStats]) -> Table:
     return table
 
 
-@click.command()
+@click.command(cls=FoliageCommand, common=("--output", "--paths", "--noise", "--seed", "--sun"))
 @SCENE
 @OUT
 @click.option("--paths", type=click.IntRange(min=2), default=1_000_000, show_default=True,
-              help="Sun photon paths; with --noise, the most that will be traced. Noise falls as 1/sqrt(paths).")
+              help="Sun photon paths (with --noise: the most traced).")
 @click.option("--noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=None,
-              help="Stop once the per-leaf E_scattered noise (relative RMS over leaves, from two independent halves) is at "
-                   "or below this, e.g. 0.01 for 1 %; the result is still fixed by --seed.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed; results are bitwise reproducible for a seed.")
-@click.option("--workers", type=click.IntRange(min=1), default=None, help="Threads [default: all cores]; does not change the results.")
+              help="Stop at this per-leaf E_scattered noise (relative RMS), e.g. 0.01.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed: the same seed, the same result.")
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Threads [default: all cores]; results do not depend on it.")
 @bake_options
 @common_options
 def reference(scene: Path, out: Path, paths: int, noise: float | None, seed: int, workers: int | None, sun: str | None,
@@ -155,7 +148,7 @@ def reference(scene: Path, out: Path, paths: int, noise: float | None, seed: int
     run(body)
 
 
-class BenchCommand(click.Command):
+class BenchCommand(FoliageCommand):
     """``foliage bench``, whose help ends with the methods and families of the registry
     (foliage_tools/bench/registry.py), read when the help is shown: a method that lands is listed without
     editing this, and other commands do not pay the seconds its modules take to import."""
@@ -172,19 +165,18 @@ class BenchCommand(click.Command):
         super().format_epilog(ctx, formatter)
 
 
-@click.command(cls=BenchCommand)
+@click.command(cls=BenchCommand, common=("--methods", "--plot", "--noise", "--sun"))
 @SCENE
 @click.option("--methods", "methods_", default=None, metavar="NAME,...",
-              help="Methods to run, by name (that method alone) or family: NAME* (NAME and its variants), or a family name "
-                   "no method has (lb). Listed below [default: every available one].")
-@click.option("--plot", type=click.Path(path_type=Path, dir_okay=False), default=None, help="Write a log-log speed-vs-error plot (PNG/SVG/PDF).")
+              help="Methods or families (NAME*) to run, listed below [default: all].")
+@click.option("--plot", type=click.Path(path_type=Path, dir_okay=False), default=None, help="Also write a speed-vs-error plot (PNG, SVG or PDF).")
 @click.option("--paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
-              help="Most reference Monte Carlo sun paths (it stops earlier at --noise).")
+              help="Most reference sun paths (it stops earlier at --noise).")
 @click.option("--noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,
-              help="Reference per-leaf E_scattered noise at which tracing stops; 2 % resolves a 5 % error.")
+              help="Reference noise at which tracing stops.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Reference seed.")
 @click.option("--direct-samples", default="auto", show_default=True, callback=parse_direct_samples, metavar="auto|N",
-              help="Shadow rays per leaf for the exact E_direct (--direct rays) every method is scored with (as the bakes).")
+              help="Shadow rays per leaf for the exact E_direct every method is scored with.")
 @bake_options
 @common_options
 def bench(scene: Path, methods_: str | None, plot: Path | None, paths: int, noise: float, seed: int, direct_samples: int | None,
@@ -263,50 +255,32 @@ def bench_table(scene: Path, s: BenchStats) -> Table:
     return table
 
 
-@click.command()
+@click.command(cls=FoliageCommand, common=("--output", "--resolution", "--bases", "--sun"))
 @SCENE
 @OUT
-@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True, help="Lattice nodes along the longest edge of each prototype's foliage bounds.")
+@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True, help="Grid cells along a tree's longest edge.")
 @click.option("--bases", type=click.Choice(["sun", "all"]), default="sun", show_default=True,
-              help="sun: the geist2008 sun boundary for the scene's sun (grid lbSun); all: the 18 Kronecker bases + ambient "
-                   "of steele2010 3.1 for relighting (grids lbBase01..18, lbAmbient; 18x the memory and work of sun: "
-                   "~151 bytes per node and right-hand side, 128^3 ~14.5 GB, half that with --storage fp16; `foliage plan` "
-                   "shows it first).")
-@click.option("--tolerance", type=float, default=1e-5, show_default=True, help="Relative residual at which the steady state is accepted. With --storage fp16 a solve also counts as "
-                   "converged, with a warning, once a sweep changes the lattice by no more than its rounding to binary16 "
-                   "(~1e-4; README 'LB storage').")
+              help="sun: the scene's sun; all: 18 relighting bases.")
+@click.option("--tolerance", type=float, default=1e-5, show_default=True, help="Relative residual at which the steady state is accepted (with --storage fp16 also: once a sweep "
+                   "changes the lattice by no more than its rounding, with a warning).")
 @click.option("--solver", type=click.Choice(["auto", "iterate", "bicgstab", "extrapolate", "ordered"]), default="auto", show_default=True,
-              help="auto: ordered sweeps (in place, in alternating node order, so light crosses the whole grid in "
-                   "one: ~7 sweeps where plain ones need about the grid's edge), then, if still short, plain ones "
-                   "switching to BiCGSTAB when convergence is slow (low absorption). ordered / iterate / bicgstab / "
-                   "extrapolate: one method alone (README \"LB solvers\").")
+              help="auto: ordered sweeps, then plain ones switching to BiCGSTAB when convergence is slow; the others: "
+                   "one method alone.")
 @click.option("--absorption-scale", type=float, default=1.0, show_default=True,
-              help="sigma_a = scale x (1 - r - t), scale in (0, 1]. 1 = physical leaf; geist2008 used 0.125.")
+              help="sigma_a = scale x (1 - r - t), scale in (0, 1]; 1: the physical leaf (geist2008 used 0.125).")
 @click.option("--max-sweeps", type=click.IntRange(min=1), default=20000, show_default=True,
-              help="Stop after this many lattice sweeps. Short of --tolerance the layer is still written, and the "
-                   "command exits 1 (a bake that failed its accuracy check).")
+              help="Stop after this many sweeps; short of --tolerance the layer is written and the exit code is 1.")
 @click.option("--storage", type=click.Choice(["fp32", "fp16"]), default="fp32", show_default=True,
-              help="How the solver stores the lattice densities between sweeps: fp32, or fp16 (binary16 with float32 "
-                   "arithmetic: half the memory at about the same speed; with --bases all every leaf of the example tree was "
-                   "within 0.07 % of fp32; not with --solver bicgstab). The grids written are as --grid-precision says either way; README "
-                   "'LB storage' gives the measured error.")
+              help="How the solver stores the lattice between sweeps: fp32, or fp16 (half the memory, float32 arithmetic; "
+                   "not with --solver bicgstab).")
 @grid_precision_option
 @click.option("--base-extent", type=click.Choice(["leaves", "lattice"]), default="leaves", show_default=True,
-              help="Where --bases all stores lbAmbient and lbBase01..18: leaves, only at the lattice nodes the relighting "
-                   "reads (around every leaf: 17.9 % of tree_small's 64^3 nodes, its .vdb 4.5x smaller, 1.8x at 24^3; "
-                   "steele2010 4.2 'we do not store data that will not be accessed'; relit light identical), or "
-                   "lattice, every node (for a renderer that samples the bases away from the leaves). No effect with "
-                   "--bases sun, whose lbSun keeps every node.")
+              help="Where --bases all stores its grids: leaves (only the nodes relighting reads, around every leaf) or "
+                   "lattice (every node, for renderers that sample away from the leaves).")
 @click.option("--first-order", "first_order", type=click.Choice(["march", "field"]), default=None,
-              help="Where a sun bake's per-leaf once-scattered light (primvars:foliage:lb:scattered) comes from. march "
-                   "(the default with --bases sun): each leaf's exact direct light (the shadow rays; the wood's too) "
-                   "scattered once by its r and t and marched through a 32-voxel medium of the leaves, plus the "
-                   "lattice's later orders at the leaf; field (the only choice with --bases all): the lattice field at "
-                   "the leaf, whose first order is that of the homogenised beam. Per-leaf E_scattered error at 64 on "
-                   "tree_small / the oak / the sapling 0.13 / 0.20 / 0.19 with march, 0.26 / 0.28 / 0.29 with field; "
-                   "both within 10 % of the exact solution in every depth bin of a uniform leaf layer (README 'LB with "
-                   "the marched first order'). The grids and lbIndirect stay the field.  [default: march; field with "
-                   "--bases all]")
+              help="Per-leaf once-scattered light: march (each leaf's exact direct light scattered once and marched "
+                   "through the leaves, the lattice's later orders on top) or field (the lattice at the leaf). "
+                   "[default: march; field with --bases all]")
 @gather_option("LB's scattered light", "primvars:foliage:lb:scattered and lbIndirect (then per leaf)")
 @volume_purpose_option
 @direct_options
@@ -363,16 +337,15 @@ def lb(scene: Path, out: Path, resolution: int, bases: str, tolerance: float, so
 def bake_job_options(fn):
     """The options of one bake (``bake``, and ``batch`` for each of its assets)."""
     for option in reversed((
-        click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True, help="Density and LB grid resolution."),
-        click.option("--with-reference", is_flag=True, help="Also trace the Monte Carlo reference: bench.json / bench.png, and NAME.ref.usda over the bake (its "
-                          "per-leaf reference light, for `foliage preview NAME.ref.usda --compare lb,reference --error-image`)."),
+        click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True, help="Grid cells along a tree's longest edge."),
+        click.option("--with-reference", is_flag=True, help="Also trace the Monte Carlo reference and score against it."),
         click.option("--reference-paths", type=click.IntRange(min=2), default=64_000_000, show_default=True,
                      help="Most reference sun paths (with --with-reference); it stops earlier at --reference-noise."),
         click.option("--reference-noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,
                      help="Reference per-leaf E_scattered noise at which tracing stops (with --with-reference)."),
         click.option("--layer-format", type=click.Choice(["auto", "usda", "usdc"]), default="auto", show_default=True,
-                     help="File format of the bake's layers: usda (text), usdc (binary, ~4x smaller and faster for large "
-                          "bakes) or auto: usdc from 100 000 prototype leaves or 10 000 instances on, else usda."),
+                     help="Layer file format: usda (text), usdc (binary, ~4x smaller) or auto: usdc from 100 000 leaves or "
+                          "10 000 instances on."),
         gather_option("the volume method's (SPPG's in the spp stage, LB's in the lb stage)",
                       "primvars:foliage:sppg:scattered and :lb:scattered"),
         grid_precision_option,
@@ -401,25 +374,23 @@ def bake_params(*, resolution: int, with_reference: bool, reference_paths: int, 
     )
 
 
-@click.command()
+@click.command(cls=FoliageCommand, common=("--output", "--resolution", "--with-reference", "--portable", "--sun"))
 @SCENE
 @click.option("-o", "--output", "outdir", required=True, type=click.Path(path_type=Path, file_okay=False), help="Output directory (created if missing).")
 @bake_job_options
 @click.option("--portable", is_flag=True,
-              help="Write the input, flattened into one layer, into OUTDIR (NAME.input.usda, its textures and other files "
-                   "copied beside it) and bake that, so OUTDIR can be moved or shipped on its own. Without it the first "
-                   "layer sublayers the input by a relative path, and OUTDIR moves only together with the input.")
+              help="Copy the input into OUTDIR, so the folder can move alone.")
 @click.option("--portable-root", type=click.Path(path_type=Path, exists=True, file_okay=False), default=None,
-              help="With --portable: copy the files the input names from under this folder (default: the input's own "
-                   "folder; files outside it are named in a warning and not copied). Implies --portable.")
+              help="Copy only files under this folder (default: the input's); implies --portable.")
 @common_options
 def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, reference_paths: int, reference_noise: float,
          portable: bool, portable_root: Path | None, layer_format: str, gather: int | None, grid_precision: str, volume_purpose: str, direct_mode: str, direct_samples: int, sun: str | None, leaf_optics: str | None, wood_reflectance: float | None,
          as_json: bool, quiet: bool, verbose: int) -> None:
-    """The main job: density, s_max, SPP and LB bakes, a preview (and a speed-vs-error report) into OUTDIR.
+    """The main job: density, s_max, SPP and LB bakes and a preview of SCENE, into OUTDIR.
 
-    Each stage writes a layer that sublayers the previous one, so the last
-    (OUTDIR/NAME.lb.usda) holds the whole bake over the untouched input.
+    Each stage writes a layer that sublayers the previous one, so the last,
+    OUTDIR/NAME.lb.usda, holds the whole bake over the untouched input. Per-leaf
+    light is relative to a unit sun irradiance normal to the beam.
 
     \b
     Examples:
@@ -458,75 +429,37 @@ def bake(scene: Path, outdir: Path, resolution: int, with_reference: bool, refer
 
 
 
-@click.command()
+@click.command(cls=FoliageCommand, common=("--output", "--resolution", "--directions", "--sun"))
 @SCENE
 @OUT
-@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True, help="Density grid voxels along the longest foliage edge.")
-@click.option("--directions", type=click.IntRange(min=2), default=16, show_default=True, help="Sample directions for the G-factor and the sky (even; the paper used 16-22).")
-@click.option("--no-gfactor", is_flag=True, help="Plain SPP only: skip the sppg primvars (G is still written as a grid).")
-@click.option("--refine", is_flag=True, help="Integrate the refined radiance of shinya2013 appendix A.1 for the sun's scattered light "
-              "(refines the paper's closed form: implies --model spp).")
+@click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True, help="Grid cells along a tree's longest edge.")
+@click.option("--directions", type=click.IntRange(min=2), default=16, show_default=True, help="Sample directions of the G-factor and sky.")
+@click.option("--no-gfactor", is_flag=True, help="Plain SPP only: no sppg primvars (G is still written as a grid).")
+@click.option("--refine", is_flag=True, help="Integrate the refined radiance of shinya2013 appendix A.1 (implies --model spp).")
 @click.option("--model", "model", type=click.Choice(["exact", "spp"]), default=None,
-              help="The plane-parallel part of the scattered light. exact: the exact solution of the local slab per leaf "
-                   "(the project's discrete-ordinate solver, tabulated once per optics); spp: shinya2013's closed form "
-                   "(eqs. 17-22), which loses about half the scattered light of a high sun even in an exactly "
-                   "plane-parallel canopy. [default: exact; spp with --refine]")
+              help="The slab model: exact (discrete ordinates, tabulated once per optics) or spp (shinya2013's closed "
+                   "form, eqs. 17-22). [default: exact; spp with --refine]")
 @click.option("--g-weights", "g_weights", type=click.Choice(["paper", "radiance"]), default="paper", show_default=True,
-              help="How the G-factor combines its sample directions. Each direction v has a present fraction F_v: the share "
-                   "of the plane-parallel single scattering along v that lies inside the real medium (shinya2013 eq. 26). "
-                   "paper: G is their plain mean (eq. 27), every direction counting the same whatever light it carries. "
-                   "radiance: each F_v is weighted by the plane-parallel single-scattering radiance arriving from v, so G "
-                   "is the share of the point's once-scattered light that is really there (lighting/gfactor/ derives "
-                   "it). Measured: it hardly moves G in a uniform layer and lowers it on isolated crowns (tree_small "
-                   "0.68 -> 0.59), which helps the exact slab only with bright leaves.")
+              help="How G combines its directions' present fractions: paper (plain mean, eq. 27) or radiance "
+                   "(weighted by the single-scattering radiance from each).")
 @click.option("--g-orders/--no-g-orders", "g_orders", default=None,
-              help="Apply the G-factor per order of scattering (the default with --model exact; --no-g-orders: once, "
-                   "shinya2013 eq. 28, the default with --model spp): G is a share of once-scattered light; each later "
-                   "order is lost at the rate light re-meets a leaf, so the scattered light is scaled by "
-                   "G s / (1 - (1 - s) rho), s = the exact slab's once-scattered share at the leaf and rho = the real "
-                   "medium's recollision probability over the slab's there, instead of by G (lighting/gfactor/). It "
-                   "matters for bright leaves (albedo near 1), where s is small (in shinya2013's own test, albedo "
-                   "0.95, the exact slab + G on the oak scores 0.065 binned error per order against 0.385 with G once "
-                   "on the same grid; README 'The later orders').")
+              help="Apply G per order of scattering, later orders at the recollision rate (--no-g-orders: once, eq. 28). "
+                   "[default: per order with --model exact, once with spp]")
 @click.option("--first-order", "first_order", type=click.Choice(["march", "slab"]), default=None,
-              help="Where SPPG's once-scattered sun light comes from. march: each leaf's exact direct light (the "
-                   "shadow rays) scattered once by its r and t and marched through a 32-voxel medium of the leaves "
-                   "to every other leaf, the later orders at --g-orders' rate; slab: the exact slab's first order "
-                   "times G (shinya2013 eq. 28). The slab has no sides, so it keeps light a finite crown loses "
-                   "sideways: on the oak its first order reads 1.1 -> 2.0x the reference from top to bottom, "
-                   "which no G constant over depth can mend. Per-leaf E_scattered error on tree_small / the oak / "
-                   "the sapling 0.134 / 0.201 / 0.199 with march, 0.223 / 0.328 / 0.306 with slab; uniform layer "
-                   "within -1.3 ... +4.3 % of the reference in every depth bin (README 'SPPG's first order'). "
-                   "Costs ~0.3 s on the oak. With march, G (and --g-weights) no longer scales the sun's scattered light; it still "
-                   "scales the sky's, and sppGFactor is G. [default: march with --g-orders, slab without]")
+              help="SPPG's once-scattered sun light: march (each leaf's exact direct light marched through the leaves) "
+                   "or slab (the slab's first order times G, eq. 28). [default: march with --g-orders, slab without]")
 @click.option("--g-resolution", "g_resolution", type=click.IntRange(min=0), default=None,
-              help="Measure the G-factor's depths through a coarse leaf-area density grid of this many voxels along the "
-                   "longest foliage edge (shinya2013 keeps G on a ~16^3 grid), not from each leaf's own depths. G is "
-                   "lowered by mere depth noise (a leaf whose depth toward the sun reads long counts the slab as deeper "
-                   "than its other directions see): in a uniform leaf layer 16 lifts G from 0.92 to 0.97 in the interior, "
-                   "where the true loss through the sides is 2-8 %. On isolated crowns a higher G brightens the exact "
-                   "slab, which is already too bright there unless --g-orders. 0: per leaf. [default: 16 with --model exact, "
-                   "0 with --model spp]")
+              help="Cells along the longest edge of the coarse grid through which G's depths are measured; 0: each "
+                   "leaf's own depths. [default: 16 with --model exact, 0 with spp]")
 @click.option("--depth-resolution", "depth_resolution", default="auto", show_default=True, metavar="auto|N",
               callback=parse_depth_resolution,
-              help="With grid depths: voxels along the longest foliage edge of the leaf-area density grid each leaf's "
-                   "depths are integrated through (the written grids keep --resolution). auto: per tree, the finest grid "
-                   "up to --resolution whose voxels holding a leaf hold 4 leaves on average, so the slab model sees a "
-                   "homogeneous medium rather than single leaves: with --first-order slab, where the depths also set the "
-                   "first order, per-leaf E_scattered error on tree_small / the oak / the sapling 0.35 / 0.41 / 0.43 at "
-                   "64 voxels, 0.22 / 0.33 / 0.31 with auto (README 'The depth grid').")
+              help="With grid depths: grid cells along the longest foliage edge of the grid the leaves' depths are "
+                   "integrated through. auto: the finest up to --resolution with 4 leaves per occupied cell.")
 @click.option("--depth", type=click.Choice(["auto", "rays", "grid"]), default="auto", show_default=True,
-              help="How each leaf's optical depth toward the sun and the sample directions is measured (shinya2013 eq. 29). "
-                   "grid: integrate the leaf-area density grid (own leaf's area taken out), assuming randomly oriented leaves. "
-                   "rays: count the leaves crossed through the actual leaf triangles (Embree), own leaf skipped, averaged over "
-                   "--rays-per-leaf points on each leaf; costs rays-per-leaf x (2 x directions + 2) rays per leaf per instance "
-                   "(a 50k-leaf tree: 25-56 s against 0.2-0.6 s for grid). "
-                   "auto: grid with the exact direct light (--direct rays): the depths then serve the scattered light only, "
-                   "where the grid's smooth depths measured better (uniform layer at 60 degrees: -1..+2 % against -11..-16 % "
-                   "for ray counts); with --direct volume, rays up to 50k leaves (their visible share is the better direct "
-                   "term) and grid above.")
+              help="Leaf optical depths (eq. 29): grid (through the density grid) or rays (leaves crossed, Embree; "
+                   "slow on large trees). auto: grid with --direct rays; with --direct volume, rays up to 50k leaves.")
 @click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True,
-              help="With --depth rays: origins per leaf, uniform over its area (seeded); more rays, less count noise (1/sqrt).")
+              help="With --depth rays: ray origins per leaf, uniform over its area (seeded).")
 @gather_option("SPPG's (SPP's with --no-gfactor)", "primvars:foliage:sppg:scattered (spp with --no-gfactor)")
 @volume_purpose_option
 @direct_options

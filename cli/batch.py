@@ -11,6 +11,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from foliage_tools.cli.helpformat import FoliageCommand
 from foliage_tools.cli import console
 from foliage_tools.cli.bakes import bake, bake_job_options, bake_params
 from foliage_tools.cli.common import _long_names, common_options, error_report, run, setup_logging
@@ -86,17 +87,15 @@ def _asset(spec, base, flags: dict):
     return Asset(name=spec.name, path=spec.path, params=params)
 
 
-@click.command()
+@click.command(cls=FoliageCommand, common=("--output", "--workers", "--scheduler", "--dry-run", "--force", "--resolution"))
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("-o", "--output", "outroot", required=True, type=click.Path(path_type=Path, file_okay=False),
-              help="Output root: each asset bakes into OUTROOT/<name>/ (created if missing); OUTROOT/batch.json records them.")
+              help="Output root: each asset bakes into OUTROOT/<name>/.")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Local cluster: worker processes, one bake each at a time, numba's threads sharing the cores among "
-                   "them [default: one per core, at most one per asset to bake].")
+              help="Local worker processes [default: one per core].")
 @click.option("--scheduler", metavar="tcp://HOST:PORT", default=None,
-              help="Run on an existing Dask cluster (a farm) instead of a local one. Its workers need foliage-tools and "
-                   "the same paths to inputs and OUTROOT; start them with `dask worker tcp://HOST:PORT --nthreads 1`.")
-@click.option("--dry-run", is_flag=True, help="Say which assets would bake and why, from the cache; bake and write nothing.")
+              help="Bake on this Dask scheduler (a farm) instead of locally.")
+@click.option("--dry-run", is_flag=True, help="Say which assets would bake and why; write nothing.")
 @click.option("--force", is_flag=True, help="Bake every asset, even those the cache says are unchanged.")
 @bake_job_options
 @common_options
@@ -104,38 +103,14 @@ def batch(inputs: tuple[Path, ...], outroot: Path, workers: int | None, schedule
           as_json: bool, quiet: bool, verbose: int, **bake_values) -> None:
     """Bake many assets: the stages of `foliage bake` for each, on Dask distributed, cached by content.
 
-    INPUTS are USD files (.usd/.usda/.usdc/.usdz), directories (searched for
-    USD files; a file another one uses, such as a sublayer, belongs to that
-    asset), or manifests (.toml): [[asset]] tables with path (relative to the
-    manifest), an optional name and any `foliage bake` option by its long
-    name; top-level keys apply to all of a manifest's assets. Precedence,
-    first wins: an asset's own keys, the manifest's top-level keys, flags,
-    --config.
-
-    Each asset bakes into OUTROOT/<name>/ (name: the file's stem) with the
-    bake's guarantees: all of its files or none, a killed run finished or
-    cleaned up by the next one. One task per asset runs on a local cluster
-    (--workers) or a farm (--scheduler); a failing asset (bad input, a
-    crash, its worker killed) fails alone and the others go on.
-
-    \b
-    Cache: an asset is skipped ("cached") when the SHA-256 of every file its
-    stage reads (the whole layer stack, references, payloads, .vdb grids,
-    textures), its options, its leaf optics and the tool are those of its last
-    successful bake and its outputs are still there. Editing a sublayer or a
-    texture rebakes the assets that read it, and only those; touching a file
-    (its time only) rebakes nothing.
-
-    \b
-    OUTROOT/batch.json (rewritten atomically after every asset, so a batch
-    run again resumes where it stopped), per asset: status (baked, cached,
-    failed), key, seconds, outputs, warnings, error (code, type, message),
-    attempts, and the file hashes and options of its key.
-
-    \b
-    Exit codes: 0 every asset baked or cached; 1 any asset failed (each
-    reported with its message; the others are written); 2 bad usage or
-    inputs (nothing baked); 130 interrupted (finished assets stay recorded).
+    INPUTS are USD files, directories (searched for USD files) or .toml
+    manifests ([[asset]] tables: path, an optional name, any `foliage bake`
+    option). Each asset bakes into OUTROOT/<name>/ with the guarantees of
+    `foliage bake`; a failing asset fails alone. An asset whose files,
+    options and tool are those of its last bake is skipped ("cached").
+    OUTROOT/batch.json records every asset (status, key, seconds, outputs,
+    warnings, error). Exit codes: 0 all baked or cached; 1 any asset failed;
+    2 bad usage or inputs (nothing baked); 130 interrupted.
 
     \b
     Examples:

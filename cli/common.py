@@ -27,13 +27,13 @@ from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_FINDINGS, EXIT_INTERNAL, E
 from foliage_tools.pipeline.report import Progress, Report, S
 
 SCENE = click.argument("scene", type=click.Path(path_type=Path, dir_okay=True))
-OUT = click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), help="Output USD layer (.usda/.usdc); grids go beside it as .vdb files.")
-JSON = click.option("--json", "as_json", is_flag=True, help="Print one JSON report on stdout (schemas/json/report.schema.json) instead of tables.")
+OUT = click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), help="Output layer (.usda/.usdc); .vdb grids go beside it.")
+JSON = click.option("--json", "as_json", is_flag=True, help="One JSON report on stdout, no tables.")
 
 
 def common_options(fn: Callable) -> Callable:
-    fn = click.option("-v", "--verbose", count=True, help="More log output (repeat for debug).")(fn)
-    fn = click.option("-q", "--quiet", is_flag=True, help="No progress, warnings or tables; errors still go to stderr.")(fn)
+    fn = click.option("-v", "--verbose", count=True, help="More log output (-vv: debug).")(fn)
+    fn = click.option("-q", "--quiet", is_flag=True, help="No progress, warnings or tables; errors still print.")(fn)
     return JSON(fn)
 
 
@@ -285,21 +285,21 @@ def config_option(fn: Callable) -> Callable:
     """``--config FILE.toml`` (``_load_config``): the bake commands, density, plan and preview."""
     return click.option(
         "--config", type=click.Path(path_type=Path, dir_okay=False), callback=_load_config, is_eager=True, expose_value=False,
-        help="TOML file of option values (keys = long option names; a [COMMAND] table applies to one command). Flags override it.",
+        help="TOML file of option values; flags win.",
     )(fn)
 
 
 def bake_options(fn: Callable) -> Callable:
     """Options shared by the bake commands (DESIGN.md section 3)."""
     fn = config_option(fn)
-    fn = click.option("--wood-reflectance", type=click.FloatRange(0, 1), default=None, help="Bark reflectance, 0..1 [default: 0.2].")(fn)
+    fn = click.option("--wood-reflectance", type=click.FloatRange(0, 1), default=None, help="Bark reflectance, 0 to 1 [default: 0.2].")(fn)
     fn = click.option(
         "--leaf-optics", default=None, metavar="PRESET|r,t|rR,rG,rB,tR,tG,tB",
-        help="Leaf reflectance and transmittance: a preset (geist2008, bright), one pair for all channels, or RGB each [default: geist2008].",
+        help="Leaf reflectance,transmittance: a preset (geist2008, bright), r,t, or RGB each [default: geist2008].",
     )(fn)
     fn = click.option(
         "--sun", default=None, metavar="AZ,EL", callback=check_sun,
-        help="Sun azimuth (counter-clockwise about up from +X) and elevation, degrees. Default: the stage's DistantLight, else 45,60.",
+        help="Sun azimuth,elevation, degrees [default: stage's sun or 45,60].",
     )(fn)
     return fn
 
@@ -308,14 +308,13 @@ def direct_options(fn: Callable) -> Callable:
     """``--direct`` and ``--direct-samples``: the E_direct a bake writes (shared by lb, spp, smax and bake)."""
     fn = click.option(
         "--direct-samples", default="auto", show_default=True, callback=parse_direct_samples, metavar="auto|N",
-        help="With --direct rays: shadow rays per leaf, an even number (two halves give the sampling error in the JSON "
-             "report). auto: 1024 up to 16k leaves, fewer above so the scene takes at most 16M rays (16 at 1M leaves).",
+        help="With --direct rays: shadow rays per leaf, an even number. auto: 1024 up to 16k leaves, fewer above "
+             "(at most 16M rays in all).",
     )(fn)
     fn = click.option(
         "--direct", "direct_mode", type=click.Choice(["rays", "volume"]), default="rays", show_default=True,
-        help="E_direct per leaf (primvars:foliage:<m>:direct). rays: exact, from shadow rays toward the sun through every "
-             "leaf and wood triangle of every instance, stratified over each leaf's area (Embree). volume: the method's own "
-             "estimate from its volume model, as in the papers (kept so `foliage bench` can show both).",
+        help="E_direct per leaf (primvars:foliage:<m>:direct). rays: exact, shadow rays through every leaf and wood "
+             "triangle; volume: the method's own volume estimate, as in its paper.",
     )(fn)
     return fn
 
@@ -324,9 +323,8 @@ def grid_precision_option(fn: Callable) -> Callable:
     """``--grid-precision`` (lb, bake): how the LB grids are stored on disk (``LBBakeParams.grid_precision``)."""
     return click.option(
         "--grid-precision", type=click.Choice(["float", "half"]), default="float", show_default=True,
-        help="How the LB grids (lbSun, or lbAmbient and lbBase01..18) are stored in the .vdb: float (float32), or half "
-             "(OpenVDB's saveFloatAsHalf: half the file, each value within 2^-11 relative; read back as float32). "
-             "The density and the other stages' grids stay as they were written; README 'LB storage' gives the error.",
+        help="How the LB grids are stored in the .vdb: float (float32) or half (half the file, each value within "
+             "2^-11 relative). Other grids stay float.",
     )(fn)
 
 
@@ -334,9 +332,8 @@ def volume_purpose_option(fn: Callable) -> Callable:
     """``--volume-purpose`` (density, spp, lb, bake): the purpose of the FoliageLighting volume written."""
     return click.option(
         "--volume-purpose", type=click.Choice(["default", "guide"]), default="default", show_default=True,
-        help="Purpose of the <tree>/FoliageLighting volume. default: DCCs import it (Blender 5.0 does, measured) and "
-             "renderers draw it, as a grey homogenised crown over the leaves; guide: kept out of default imports and "
-             "renders (the behaviour before issue #17). Its fields are guides either way.",
+        help="Purpose of the <tree>/FoliageLighting volume: default (DCCs import and draw it) or guide (kept out of "
+             "default imports and renders).",
     )(fn)
 
 
@@ -344,13 +341,9 @@ def gather_option(later_bounces: str, replaces: str) -> Callable:
     """``--gather auto|N`` (lb, spp, bake): a final gather over the actual leaves on top of the volume method."""
     return click.option(
         "--gather", default="auto", show_default=True, callback=parse_gather, metavar="auto|N",
-        help="Final gather: N rays per leaf (a multiple of 4) over both hemispheres through the actual leaves; the "
-             f"light they see is scattered once, exactly (a shadow ray at the hit point), plus {later_bounces} at the "
-             f"hit leaf for the later bounces. Replaces {replaces}. Per-leaf error of E_scattered on the oak: 0.20 "
-             "without (lb's and spp's defaults), 0.084 with 1024 rays; the gather's own sampling error is 0.19 at 64 "
-             "rays, 0.11 at 256 (README). auto: 1024 up to 16k traced leaves, "
-             "fewer above so the gather takes at most 16M rays, off (with a warning) above 262k (and off for "
-             "lb --bases all, whose per-leaf light is then the bases' for the baked sun); 0: off.",
+        help="Final gather: N rays per leaf (a multiple of 4) through the actual leaves, the first bounce exact, "
+             f"{later_bounces} for the later ones; replaces {replaces}. auto: 1024 up to 16k leaves, fewer above, "
+             "off above 262k leaves and for lb --bases all; 0: off.",
     )
 
 

@@ -9,6 +9,7 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
+from foliage_tools.cli.helpformat import FoliageCommand
 from foliage_tools.cli import console
 from foliage_tools.cli.common import common_options, execute, run, setup_logging
 
@@ -17,17 +18,16 @@ if TYPE_CHECKING:
     from foliage_tools.pipeline.stats import ImportStats
 
 
-@click.command(name="import")
+@click.command(name="import", cls=FoliageCommand, common=("--output", "--up-axis", "--meters-per-unit", "--leaves", "--all-leaves"))
 @click.argument("model", type=click.Path(path_type=Path, dir_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path, dir_okay=False),
               help="Output USD layer (.usda/.usdc) holding the tree asset.")
 @click.option("--up-axis", type=click.Choice(["Y", "Z"], case_sensitive=False), default="Y", show_default=True,
-              help="The model's up axis, written as the stage's upAxis (the geometry is not rotated). glTF is Y-up by its spec.")
+              help="The model's up axis, written as upAxis (not rotated).")
 @click.option("--meters-per-unit", type=float, default=1.0, show_default=True,
-              help="Metres per model unit, written as metersPerUnit (0.01 for a model in centimetres).")
+              help="Metres per model unit (0.01 for centimetres).")
 @click.option("--leaves", "leaf_pattern", default=None, metavar="REGEX",
-              help="Parts whose name (OBJ object/group or material, glTF mesh) matches this (case-insensitive) hold leaves "
-                   "[default: leaf|leaves|foliage|needle, as for USD input].")
+              help="Leaf parts' names [default: leaf|leaves|foliage|needle].")
 @click.option("--all-leaves", is_flag=True, help="Every part holds leaves (a file of leaf cards only).")
 @click.option("--merge-distance", type=click.FloatRange(min=0), default=None,
               help="Merge vertices closer than this, model units [default: 1e-6 of the bounding-box diagonal, i.e. coincident ones].")

@@ -19,6 +19,7 @@ from rich.table import Table
 
 from foliage_tools import __version__
 from foliage_tools.cli import common, console
+from foliage_tools.cli.helpformat import FoliageCommand
 from foliage_tools.cli.common import OUT, SCENE, common_options, config_option, execute, run, setup_logging, volume_purpose_option
 from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED
 from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE
@@ -54,7 +55,7 @@ def cli() -> None:
     """
 
 
-@cli.command()
+@cli.command(cls=FoliageCommand)
 @SCENE
 @common_options
 def inspect(scene: Path, as_json: bool, quiet: bool, verbose: int) -> None:
@@ -102,10 +103,10 @@ def inspect(scene: Path, as_json: bool, quiet: bool, verbose: int) -> None:
     run(body)
 
 
-@cli.command()
+@cli.command(cls=FoliageCommand, common=("--strict", "--list-rules"))
 @click.argument("scene", type=click.Path(path_type=Path, dir_okay=True), required=False)
-@click.option("--strict", is_flag=True, help="Treat warnings (e.g. degenerate triangles) as failures too.")
-@click.option("--list-rules", is_flag=True, help="List the rules that are checked and exit (no SCENE needed).")
+@click.option("--strict", is_flag=True, help="Fail on warnings too (exit 1).")
+@click.option("--list-rules", is_flag=True, help="List the rules checked, and exit (no SCENE needed).")
 @common_options
 def validate(scene: Path | None, strict: bool, list_rules: bool, as_json: bool, quiet: bool, verbose: int) -> None:
     """Check SCENE with USD's validators and the foliage rules.
@@ -151,15 +152,14 @@ def validate(scene: Path | None, strict: bool, list_rules: bool, as_json: bool, 
     run(body)
 
 
-@cli.command()
+@cli.command(cls=FoliageCommand, common=("--output", "--resolution", "--voxel-size", "--method"))
 @SCENE
 @OUT
-@click.option("--voxel-size", type=float, default=None, help="Voxel edge length in stage units (exclusive with --resolution).")
+@click.option("--voxel-size", type=float, default=None, help="Voxel edge in stage units, instead of --resolution.")
 @click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True,
-              help="Voxels along the longest edge of each prototype's foliage bounds (exclusive with --voxel-size).")
+              help="Grid cells along a tree's longest edge.")
 @click.option("--method", type=click.Choice(["area", "subgrid"]), default="area", show_default=True,
-              help="area: exact leaf area per voxel / voxel volume (leaf-area density, 1/unit). "
-                   "subgrid: geist2008 sec. 4.2 heuristic, fraction of 27 sub-cells touched (0..1).")
+              help="area: leaf-area density; subgrid: cells touched.")
 @volume_purpose_option
 @config_option
 @common_options
@@ -202,21 +202,20 @@ def density(scene: Path, out: Path, voxel_size: float | None, resolution: int | 
     run(body)
 
 
-@cli.command()
+@cli.command(cls=FoliageCommand, common=("--resolution", "--bases"))
 @SCENE
 @click.option("--resolution", type=click.IntRange(*RESOLUTION_RANGE), default=DEFAULT_RESOLUTION, show_default=True,
-              help="Grid nodes along the longest edge of each tree's foliage bounds (as for lb/spp).")
+              help="Grid cells along a tree's longest edge.")
 @click.option("--bases", type=click.Choice(["sun", "all"]), default="sun", show_default=True,
-              help="LB boundary conditions to plan for: the scene's sun, or all 18 relighting bases (x RGB).")
+              help="LB bake to plan for: the sun, or 18 relighting bases.")
 @click.option("--storage", type=click.Choice(["fp32", "fp16"]), default="fp32", show_default=True,
-              help="LB density storage to plan for, as `foliage lb --storage` (fp16 halves the solver's two fields).")
+              help="LB storage to plan for, as `foliage lb --storage` (fp16 halves the solver's memory).")
 @click.option("--depth", type=click.Choice(["auto", "rays", "grid"]), default="auto", show_default=True,
-              help="SPP depth path to plan for, as `foliage spp --depth` (rays cost grows with leaves x --rays-per-leaf x directions).")
+              help="SPP depths to plan for, as `foliage spp --depth`.")
 @click.option("--rays-per-leaf", type=click.IntRange(min=1), default=16, show_default=True,
               help="Rays per leaf of SPP's ray depths to plan for, as `foliage spp --rays-per-leaf`.")
 @click.option("--reference-paths", type=click.IntRange(min=1), default=1_000_000, show_default=True,
-              help="Monte Carlo sun paths to plan for (`foliage reference --paths`; bake --with-reference and bench "
-                   "trace up to 64M, stopping at 2 % noise).")
+              help="Monte Carlo sun paths to plan for, as `foliage reference --paths`.")
 @config_option
 @common_options
 def plan(scene: Path, resolution: int, bases: str, storage: str, depth: str, rays_per_leaf: int, reference_paths: int,

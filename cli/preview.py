@@ -7,27 +7,25 @@ from pathlib import Path
 import click
 from rich.table import Table
 
+from foliage_tools.cli.helpformat import FoliageCommand
 from foliage_tools.cli import console
 from foliage_tools.cli.common import SCENE, check_sun, common_options, config_notes, config_option, run, setup_logging
 
 METHOD_CHOICES = ["direct", "lb", "spp", "smax", "reference"]
 
 
-@click.command()
+@click.command(cls=FoliageCommand, common=("--output", "--method", "--compare", "--error-image", "--sun", "--size"))
 @SCENE
 @click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path),
-              help="Image to write: .png (tone-mapped, sRGB) or .exr (linear radiance + alpha). Sequences write OUT.0001.png ...")
+              help="Image to write: .png (sRGB) or .exr (linear).")
 @click.option("--method", type=click.Choice(METHOD_CHOICES), default="direct", show_default=True,
-              help="Scattered light added to the direct term: direct (none); lb, spp, reference: the data that bake wrote "
-                   "into SCENE; smax: Boulanger's one-bounce model evaluated per leaf in the vertex shader for the current "
-                   "sun, from the s_max and tau `foliage smax` wrote. Run that command first.")
+              help="Scattered light to draw: that bake's, or none.")
 @click.option("--compare", "compare", metavar="M1,M2,...", default=None,
-              help="Render several methods side by side in one labelled image, e.g. direct,lb,reference.")
+              help="Methods side by side in one image, e.g. direct,lb.")
 @click.option("--error-image", is_flag=True,
-              help="Add a row of false-colour luminance error of each method against reference (needs `foliage reference` data).")
+              help="Add each method's error against the reference data.")
 @click.option("--sun", metavar="AZ,EL", default=None, callback=check_sun,
-              help="Sun azimuth,elevation in degrees (azimuth counter-clockwise about up from +X). "
-                   "Default: the stage's DistantLight, else 45,60.")
+              help="Sun azimuth,elevation, degrees [default: stage's sun or 45,60].")
 @click.option("--size", metavar="WxH", default=None, help="Image size in pixels [default: 1024x1024].")
 @click.option("--camera", metavar="/PRIM/PATH", default=None, help="Render through this UsdGeom.Camera of SCENE instead of the orbit camera.")
 @click.option("--azimuth", type=float, default=None, help="Orbit camera azimuth, degrees, same convention as --sun [default: 0].")

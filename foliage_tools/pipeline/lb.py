@@ -361,7 +361,7 @@ def bake_lb(scene: Scene, sun: Sun, params: LBBakeParams, warnings: list[str], p
             warnings.append(
                 f"prototype <{proto.path}>: with fp16 storage the bases are solved as beams only on the ordinates "
                 f"lattice with sigma_t = 1; on the {params.lattice} lattice here they are boundary inflow, whose rounding "
-                "puts errors of up to ~5 % on the scattered light of single sunlit leaves (README 'LB storage'). "
+                "puts errors of up to ~5 % on the scattered light of single sunlit leaves (docs/explanation/methods.md, 'LB storage'). "
                 "Use fp32 storage where single leaves matter."
             )
         r = bake.result
@@ -473,7 +473,7 @@ def lb_layer(scene: Scene, sun: Sun, report: Report, progress: Progress, *, out:
             report.warnings.append(
                 f"prototype <{proto.path}>: LB converged to the fp16 storage's precision at residual {r.residual:.2e}, "
                 f"above --tolerance {params.tolerance:g}: a sweep now changes the lattice by no more than its rounding to "
-                f"binary16 ({r.rounding_level:.1e}), so more sweeps would only move rounding noise (README 'LB storage'). "
+                f"binary16 ({r.rounding_level:.1e}), so more sweeps would only move rounding noise (docs/explanation/methods.md, 'LB storage'). "
                 "Use --storage fp32 to reach the tolerance."
             )
         if not r.converged:  # DESIGN.md section 3: a bake that failed its own accuracy check exits 1

@@ -41,7 +41,7 @@ register("ss", "single scattering baseline (shinya2013 sec. 4.2: attenuated dire
 register("spp", "exact plane-parallel slab per leaf, no G-factor (--no-gfactor), depths through the depth grid")(_runner("spp", "exact"))
 register("sppg", "exact plane-parallel slab per leaf with the G-factor (shinya2013 eqs. 23-28, A.3), first order marched "
          "from the exact direct light (--first-order march)")(_runner("sppg", "exact"))
-register("sppg-slab", "sppg with the slab's first order times G (--first-order slab: the default before issue #15's march)")(
+register("sppg-slab", "sppg with the slab's first order times G (--first-order slab)")(
     _runner("sppg", "exact", first_order="slab"))
 register("spp-paper", "shinya2013's simplified plane-parallel closed form (eqs. 17-22, re-derived)")(_runner("spp", "spp"))
 register("sppg-paper", "shinya2013's SPP closed form with the G-factor (the paper's SPPG)")(_runner("sppg", "spp"))
@@ -49,5 +49,5 @@ register("sppg-radiance", "exact plane-parallel slab per leaf with the radiance-
          "order (--g-weights radiance --first-order slab)")(
     _runner("sppg", "exact", "radiance", first_order="slab"))
 register("sppg-paper-radiance", "shinya2013's SPP closed form with the radiance-weighted G-factor")(_runner("sppg", "spp", "radiance"))
-register("sppg-once", "exact slab with G per leaf, applied once (--g-resolution 0 --no-g-orders: sppg before issue #15's change)")(
+register("sppg-once", "exact slab with G per leaf, applied once (--g-resolution 0 --no-g-orders)")(
     _runner("sppg", "exact", g_resolution=0, g_orders=False))
