@@ -12,7 +12,7 @@ from rich.table import Table
 from foliage_tools.cli import console
 from foliage_tools.cli.common import (
     parse_depth_resolution,
-    OUT, SCENE, parse_direct_samples, bake_options, common_options, direct_choice, direct_options, execute, gather_option,
+    OUT, SCENE, SEED, parse_direct_samples, bake_options, common_options, direct_choice, direct_options, execute, gather_option,
     leaf_optics_from_flags, run,
     grid_precision_option, setup_logging, volume_purpose_option,
 )
@@ -107,7 +107,7 @@ def smax_table(report: Report[SmaxStats]) -> Table:
 @click.option("--noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=None,
               help="Stop once the per-leaf E_scattered noise (relative RMS over leaves, from two independent halves) is at "
                    "or below this, e.g. 0.01 for 1 %; the result is still fixed by --seed.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed; results are bitwise reproducible for a seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed; results are bitwise reproducible for a seed.")
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Threads [default: all cores]; does not change the results.")
 @bake_options
 @common_options
@@ -182,7 +182,7 @@ class BenchCommand(click.Command):
               help="Most reference Monte Carlo sun paths (it stops earlier at --noise).")
 @click.option("--noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,
               help="Reference per-leaf E_scattered noise at which tracing stops; 2 % resolves a 5 % error.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Reference seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Reference seed.")
 @click.option("--direct-samples", default="auto", show_default=True, callback=parse_direct_samples, metavar="auto|N",
               help="Shadow rays per leaf for the exact E_direct (--direct rays) every method is scored with (as the bakes).")
 @bake_options

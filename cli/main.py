@@ -142,7 +142,7 @@ def validate(scene: Path | None, strict: bool, list_rules: bool, as_json: bool, 
         elif not quiet:
             for f in report.stats["findings"]:
                 colour = "red" if f["severity"] == "error" else "yellow"
-                console.stdout.print(f"[{colour}]{f['severity']}[/{colour}] {escape('[' + f['rule'] + ']')} {escape(f['message'])}", highlight=False, soft_wrap=True)
+                console.stdout.print(f"[{colour}]{f['severity']}[/{colour}] {escape('[' + f['rule'] + ']')} {escape(f['message'])}", highlight=False, markup=True, soft_wrap=True)
             s = report.stats
             verdict = "FAILED" if failed else "passed"
             console.stdout.print(f"{scene}: {verdict} ({s['errors']} error(s), {s['warnings']} warning(s){', strict' if strict else ''})", highlight=False)
@@ -294,6 +294,7 @@ def _add_commands() -> None:
 
     for command in (lb, spp, smax, reference, bench, bake, batch, preview, import_model):
         cli.add_command(command)
+    common.finite_floats(cli)
 
 
 _add_commands()
