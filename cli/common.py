@@ -121,17 +121,45 @@ def run(body: Callable[[], int]) -> None:
             where = f"@{exc.filename}@: " if exc.filename else ""
             code = _fail(started, EXIT_BAD_INPUT, "EnvironmentError",
                          f"{where}{exc.strerror or exc}; {ENVIRONMENT_ERRNOS[exc.errno]}.")
-    except (MemoryError, ImportError) as exc:
-        if lacks_memory(exc):
+    except (MemoryError, ImportError, RecursionError) as exc:
+        code = _fail(started, EXIT_BAD_INPUT, *environment_failure(exc))
+    except RuntimeError as exc:
+        if "can't start new thread" in str(exc):  # no memory left for a thread's stack
             code = _fail(started, EXIT_BAD_INPUT, "MemoryError", memory_message(exc))
-        else:  # a module that is not installed (or broken): the environment's, exit 2 naming it
-            code = _fail(started, EXIT_BAD_INPUT, "EnvironmentError", missing_module_message(exc))
-    except RecursionError as exc:  # nesting deeper than Python follows (a --config of arrays in arrays, ...)
-        code = _fail(started, EXIT_BAD_INPUT, "InputError",
-                     f"an input is nested too deeply to read ({exc}); flatten it.")
+        else:
+            code = _internal(started, exc)
     except Exception as exc:  # the top-level handler: anything else is our bug
         code = _internal(started, exc)
     sys.exit(console.finish(code))
+
+
+def environment_failure(exc: BaseException) -> tuple[str, str]:
+    """The error type and message (exit 2) of a MemoryError, an ImportError or a RecursionError: out of memory
+    (:func:`memory_message`), a module that is missing or broken, or an input nested deeper than Python follows."""
+    if isinstance(exc, RecursionError):  # a --config of arrays in arrays, ...
+        return "InputError", f"an input is nested too deeply to read ({exc}); flatten it."
+    if lacks_memory(exc):
+        return "MemoryError", memory_message(exc)
+    return "EnvironmentError", missing_module_message(exc)
+
+
+#: The address space (``ulimit -v``) the libraries need to load and a small bake to run, measured on 2 cores
+#: (``lb`` at resolution 8: killed by SIGSEGV inside USD's or numba's start-up at 1,800 MB, whole at 2,200 MB).
+#: Below it they crash in C code, where no message can be given, so a lower limit is refused up front.
+MIN_ADDRESS_SPACE_MB = 2200
+
+
+def address_space_problem() -> str | None:
+    """The exit-2 message when the address-space limit (``ulimit -v``) is below :data:`MIN_ADDRESS_SPACE_MB`."""
+    import resource
+
+    soft, _hard = resource.getrlimit(resource.RLIMIT_AS)
+    if soft == resource.RLIM_INFINITY or soft >= MIN_ADDRESS_SPACE_MB << 20:
+        return None
+    return (f"this job needs more memory than is available (before loading its libraries): the address-space limit "
+            f"is {soft >> 20:,} MB (ulimit -v {soft >> 10}) and foliage needs at least {MIN_ADDRESS_SPACE_MB:,} MB to "
+            f"load USD, OpenVDB and numba (below that they crash); raise it (ulimit -v {MIN_ADDRESS_SPACE_MB << 10} "
+            "or more, or unlimited).")
 
 
 #: What the errors of a library that could not get memory say (dlopen's ENOMEM, C++'s std::bad_alloc, numpy's).
@@ -159,6 +187,8 @@ def memory_message(exc: BaseException) -> str:
     module = _failed_module(exc)
     if module is not None:
         stage = f"while loading the {module} library"
+    elif isinstance(exc, ImportError):
+        stage = f"while loading a library: {exc}"
     elif console.last_step:
         stage = f"at the step {console.last_step!r}"
     else:
@@ -173,13 +203,11 @@ def _failed_module(exc: BaseException) -> str | None:
     name = getattr(exc, "name", None)
     if isinstance(exc, ImportError) and name:
         return name.split(".")[0]
-    if isinstance(exc, ImportError):
-        return "a"
     tb = exc.__traceback__
     while tb is not None:
         code = tb.tb_frame.f_code
-        if code.co_name == "<module>":
-            return tb.tb_frame.f_globals.get("__name__", "a").split(".")[0]
+        if code.co_name == "<module>" and tb.tb_frame.f_globals.get("__name__") not in (None, "__main__"):
+            return tb.tb_frame.f_globals["__name__"].split(".")[0]
         tb = tb.tb_next
     return None
 

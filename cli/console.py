@@ -12,10 +12,12 @@ import time
 from typing import Any
 
 from rich.console import Console
+from rich.errors import MarkupError
 from rich.markup import escape
 from rich.measure import Measurement
 from rich.progress import BarColumn, Progress, SpinnerColumn, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
 
 #: Characters a terminal acts on instead of showing (C0/C1 controls but newline and tab, DEL, the bidirectional
 #: overrides) and lone surrogates (the bytes of a file name that are not UTF-8, as Python's surrogateescape reads
@@ -32,8 +34,26 @@ def _shown(match: re.Match) -> str:
 
 def printable(text: str) -> str:
     """``text`` safe to print on a terminal or a log: an escape sequence, a carriage return or a byte that is not
-    UTF-8 in a file name is shown escaped (``\\x1b[31m``), never acted on or a UnicodeEncodeError."""
+    UTF-8 in a file name is shown escaped (``\\x1b[31m``), never acted on or a UnicodeEncodeError; so is a newline
+    or a tab inside an ``@path@`` (a message's own line breaks stay)."""
+    text = _PATH.sub(lambda m: m.group().replace("\n", "\\n").replace("\t", "\\t"), text)
     return _UNPRINTABLE.sub(_shown, text)
+
+
+#: A path as messages name it (``@path@``, the project's convention).
+_PATH = re.compile("@[^@]*@")
+
+
+def _cell(value: Any) -> Any:
+    """A table's text as rich shows it: its markup (the callers escape the paths they put in), or, where that is not
+    markup rich can read (a ``[/]`` in a path nobody escaped), the text itself; control characters escaped."""
+    if not isinstance(value, str):
+        return value
+    value = printable(value)
+    try:
+        return Text.from_markup(value)
+    except MarkupError:
+        return Text(value)
 
 
 class OutputLost(Exception):
@@ -210,9 +230,9 @@ def print_table(table: Table, *, console: Console | None = None) -> None:
     """
     target = console or stdout
     for column in table.columns:  # a prim path or part name with an escape sequence in it is shown, not acted on
-        column._cells = [printable(c) if isinstance(c, str) else c for c in column._cells]
-    if isinstance(table.title, str):
-        table.title = printable(table.title)
+        column._cells = [_cell(c) for c in column._cells]
+        column.header = _cell(column.header)
+    table.title = _cell(table.title)
     if target.is_terminal:
         target.print(table)
         return

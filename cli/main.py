@@ -20,7 +20,7 @@ from rich.table import Table
 from foliage_tools import __version__
 from foliage_tools.cli import common, console
 from foliage_tools.cli.common import OUT, SCENE, common_options, config_option, execute, run, setup_logging, volume_purpose_option
-from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED
+from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_FINDINGS, EXIT_INTERRUPTED
 from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE
 
 if TYPE_CHECKING:
@@ -79,7 +79,7 @@ def inspect(scene: Path, as_json: bool, quiet: bool, verbose: int) -> None:
         console.warn(report.warnings, quiet)
         if not quiet:
             s = report.stats
-            table = Table(title=f"{scene}  (up {s['up_axis']}, {s['meters_per_unit']} m/unit)")
+            table = Table(title=f"{escape(str(scene))}  (up {s['up_axis']}, {s['meters_per_unit']} m/unit)")
             for col in ("prototype", "kind", "inst.", "leaves", "leaf tris", "wood tris", "leaf area", "size"):
                 table.add_column(col, justify="left" if col in ("prototype", "kind") else "right", overflow="fold")
             for p in s["prototypes"]:
@@ -324,17 +324,29 @@ def main() -> None:
     SIGHUP are interrupts too.
     """
     install_interrupt_handlers()
+    refusal = None if {"-h", "--help", "--version"} & set(sys.argv[1:]) else common.address_space_problem()
     try:
-        code = cli.main(prog_name="foliage", standalone_mode=False)
+        code = 2 if refusal else cli.main(prog_name="foliage", standalone_mode=False)
+        if refusal:
+            console.error(refusal)
+            _json_error(code, "MemoryError", refusal)
     except click.exceptions.Abort:
         console.stderr.print(common.interrupted_message(None))
         code = EXIT_INTERRUPTED
         _json_error(code, "Interrupted", common.interrupted_message(None))
     except click.ClickException as exc:
-        exc.show()
+        try:
+            exc.show()
+        except OSError:  # stderr is full or gone: the exit code (and --json) still say it
+            pass
         code = exc.exit_code
         _json_error(code, type(exc).__name__, exc.format_message())
-    sys.exit(code or 0)
+    except (ImportError, MemoryError, RecursionError) as exc:  # while a command loads its modules, before ``run``
+        kind, message = common.environment_failure(exc)
+        console.error(message)
+        code = EXIT_BAD_INPUT
+        _json_error(code, kind, message)
+    sys.exit(console.finish(code or 0))
 
 
 def _json_error(code: int, kind: str, message: str) -> None:
@@ -344,7 +356,10 @@ def _json_error(code: int, kind: str, message: str) -> None:
         return
     words = [a for a in args if not a.startswith("-")]
     command = words[0] if words and words[0] in cli.commands else None
-    console.print_json(common.error_report(command, words[1:2] if command else [], 0.0, code, kind, message))
+    try:
+        console.print_json(common.error_report(command, words[1:2] if command else [], 0.0, code, kind, message))
+    except console.OutputLost:  # stdout is gone: stderr and the exit code say it
+        pass
 
 
 if __name__ == "__main__":
