@@ -403,8 +403,8 @@ def check_sun(ctx: click.Context, param: click.Parameter, value: str | None) -> 
         raise click.BadParameter(f"the azimuth must be from 0 up to 360 degrees, got {given:g} (the same direction "
                                  f"is {az:g}): give --sun {az:g},{el:g}.", ctx=ctx, param=param)
     if not 0.0 < el <= 90.0:
-        raise click.BadParameter(f"the elevation must be above 0 and at most 90 degrees (the sun above the horizon), "
-                                 f"got {el:g}.", ctx=ctx, param=param)
+        raise click.BadParameter(f"the sun is at or below the horizon (elevation {el:g} degrees); the bakes need a "
+                                 "sun above it: give an elevation above 0 and at most 90.", ctx=ctx, param=param)
     return value
 
 
