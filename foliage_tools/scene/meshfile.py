@@ -364,7 +364,38 @@ def _check_gltf(path: Path) -> None:
                                   f"{prim['indices']}) is past its {n:,} positions")
 
 
-def _load(pymeshlab, path: Path, ms=None):
+#: Reads ``sys.argv[1]`` with pymeshlab and nothing else, in a process of its own (:func:`_probe`).
+_PROBE = "import sys, pymeshlab\ntry:\n    pymeshlab.MeshSet().load_new_mesh(sys.argv[1])\nexcept Exception:\n    sys.exit(1)\n"
+
+
+def _probe(path: Path) -> None:
+    """Read the user's file once in a child process first: pymeshlab's readers trust what a file says (counts,
+    indices, offsets), and a form :func:`check_file` does not know can still kill the process that reads it
+    (SIGSEGV, or an abort on a corrupted heap) with no message. A child that dies so is an :class:`InputError`
+    naming the file; one that fails politely leaves the message to the read here."""
+    import signal
+    import subprocess
+    import sys
+
+    try:
+        r = subprocess.run([sys.executable, "-c", _PROBE, str(path)], stdin=subprocess.DEVNULL,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    except OSError:  # no process to spare: read it here, as before
+        return
+    if r.returncode < 0:
+        try:
+            name = signal.Signals(-r.returncode).name
+        except ValueError:
+            name = f"signal {-r.returncode}"
+        raise InputError(f"@{path}@: pymeshlab's reader crashed on this file ({name}): it is damaged, or holds counts "
+                         "or indices its data does not back. Re-export it from the application that made it.")
+
+
+def _load(pymeshlab, path: Path, ms=None, probe: bool = True):
+    """``path`` read by pymeshlab into ``ms``; ``probe``: read it in a child first (:func:`_probe`), as for every
+    file the user gave (the parts this module writes are read directly)."""
+    if probe:
+        _probe(path)
     ms = ms if ms is not None else pymeshlab.MeshSet()
     try:
         ms.load_new_mesh(str(path))
@@ -430,7 +461,7 @@ def _obj_parts(path: Path, pymeshlab):
             with open(part, "w", encoding="utf-8") as fh:
                 fh.writelines(vertices)
                 fh.writelines(faces)
-            ms = _load(pymeshlab, part)
+            ms = _load(pymeshlab, part, probe=False)  # written here, from indices checked above
             ms.meshing_remove_unreferenced_vertices()  # every part was written with all of the file's vertices
             points, tris = _arrays(ms.current_mesh())
             full = f"{name} ({material})" if material and material != name else name
