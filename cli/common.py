@@ -32,10 +32,14 @@ NAME_ROOM = 8
 
 
 def check_output_name(ctx: click.Context, param: click.Parameter, value: Path | None) -> Path | None:
-    """``-o``: a file name that fits its filesystem with room for the temporaries the writes make, refused before
-    any work (a name that fits but leaves no room made USD's save fail after the work)."""
+    """``-o``: a file name that fits its filesystem with room for the temporaries the writes make, and holds no
+    control character, refused before any work (either made USD's save fail after the work)."""
     if value is None:
         return None
+    control = [c for c in str(value) if ord(c) < 32 or ord(c) == 127]
+    if control:  # USD refuses them in the asset paths a layer writes (its grids'), after the work
+        raise click.BadParameter(f"@{console.printable(str(value))}@ has the control character {control[0]!r} in it, which USD asset paths "
+                                 "cannot hold: choose a name without it.", ctx=ctx, param=param)
     parent = value.parent if str(value.parent) else Path(".")
     try:
         limit = os.pathconf(parent, "PC_NAME_MAX")
@@ -49,7 +53,20 @@ def check_output_name(ctx: click.Context, param: click.Parameter, value: Path | 
     return value
 
 
-SCENE = click.argument("scene", type=click.Path(path_type=Path, dir_okay=True))
+def check_scene(ctx: click.Context, param: click.Parameter, value: Path | None) -> Path | None:
+    """SCENE of a command that writes a layer over it: no control character in its path, which the layer names as
+    its sublayer and USD asset paths cannot hold (refused before any work; inspect and validate read it)."""
+    if value is None or not any(p.name in ("out", "outdir", "outroot") for p in ctx.command.params):
+        return value
+    control = [c for c in str(value) if ord(c) < 32 or ord(c) == 127]
+    if control:
+        raise click.BadParameter(f"@{console.printable(str(value))}@ has the control character {control[0]!r} in it, and the layer written "
+                                 "over it names it as a USD asset path, which cannot hold one: rename the file (or "
+                                 "link it) to a name without it.", ctx=ctx, param=param)
+    return value
+
+
+SCENE = click.argument("scene", type=click.Path(path_type=Path, dir_okay=True), callback=check_scene)
 OUT = click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), callback=check_output_name, help="Output USD layer (.usda/.usdc); grids go beside it as .vdb files.")
 JSON = click.option("--json", "as_json", is_flag=True, help="Print one JSON report on stdout (schemas/json/report.schema.json) instead of tables.")
 
@@ -272,6 +289,9 @@ class _StderrHandler(logging.StreamHandler):
     @stream.setter
     def stream(self, _value) -> None:
         pass
+
+    def format(self, record: logging.LogRecord) -> str:
+        return console.printable(super().format(record))  # a path with an escape sequence in it is shown, not acted on
 
 
 def setup_logging(verbose: int, quiet: bool) -> None:

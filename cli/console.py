@@ -97,6 +97,22 @@ def write(name: str, text: str) -> None:
             raise OutputLost(exc) from None
 
 
+class PrintableStream:
+    """A text stream that writes what it is given through :func:`printable` (for click's own usage messages)."""
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        if self.stream is None:
+            return len(text)
+        return self.stream.write(printable(text))
+
+    def flush(self) -> None:
+        if self.stream is not None:
+            self.stream.flush()
+
+
 class SafeConsole(Console):
     """A rich console that prints what it is given as text: markup only where a caller asks for it
     (``markup=True``, having passed every path and user-given part through :func:`rich.markup.escape`), control

@@ -10,7 +10,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from foliage_tools.cli import console
-from foliage_tools.cli.common import common_options, execute, run, setup_logging
+from foliage_tools.cli.common import check_output_name, common_options, execute, run, setup_logging
 
 if TYPE_CHECKING:
     from foliage_tools.pipeline.report import Report
@@ -20,7 +20,7 @@ if TYPE_CHECKING:
 @click.command(name="import")
 @click.argument("model", type=click.Path(path_type=Path, dir_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path, dir_okay=False),
-              help="Output USD layer (.usda/.usdc) holding the tree asset.")
+              callback=check_output_name, help="Output USD layer (.usda/.usdc) holding the tree asset.")
 @click.option("--up-axis", type=click.Choice(["Y", "Z"], case_sensitive=False), default="Y", show_default=True,
               help="The model's up axis, written as the stage's upAxis (the geometry is not rotated). glTF is Y-up by its spec.")
 @click.option("--meters-per-unit", type=float, default=1.0, show_default=True,

@@ -336,7 +336,7 @@ def main() -> None:
         _json_error(code, "Interrupted", common.interrupted_message(None))
     except click.ClickException as exc:
         try:
-            exc.show()
+            exc.show(file=console.PrintableStream(sys.stderr))  # a file name with escape sequences is shown escaped
         except OSError:  # stderr is full or gone: the exit code (and --json) still say it
             pass
         code = exc.exit_code

@@ -230,6 +230,27 @@ def test_control_characters_and_bytes_in_a_file_name_are_shown_escaped(tmp_path,
     assert r.returncode == 2 and json.loads(r.stdout)["error"]["code"] == 2
 
 
+def test_click_usage_errors_and_log_lines_show_control_characters_escaped(tmp_path):
+    r = _run(["validate", "--x\x1b[31m"], capture_output=True, text=True)
+    assert r.returncode == 2 and "--x\\x1b[31m" in r.stderr and "\x1b" not in r.stderr, r.stderr
+    folder = tmp_path / "in\x1b[2J"
+    folder.mkdir()
+    tree = folder / "t.usda"
+    tree.write_bytes(TREE.read_bytes())
+    r = _run(["inspect", tree, "-v"], capture_output=True, text=True)
+    assert r.returncode == 0 and "in\\x1b[2J" in r.stdout and "\x1b" not in r.stderr + r.stdout, r.stderr
+    # a layer over it would name it as its sublayer, which USD cannot hold: refused before any work
+    r = _run(["density", tree, "-o", tmp_path / "o.usda", "--resolution", "8", "--json"], capture_output=True, text=True)
+    assert_clean_exit(r)
+    assert_json_error(r)
+    assert "in\\x1b[2J" in r.stderr and "control character" in r.stderr and "\x1b" not in r.stderr
+    # an output name USD cannot write as an asset path: refused at the option, before any work
+    r = _run(["density", TREE, "-o", tmp_path / "o\x1b[2J.usda", "--json"], capture_output=True, text=True)
+    assert_clean_exit(r)
+    assert_json_error(r)
+    assert "o\\x1b[2J.usda" in r.stderr and "control character" in r.stderr and "\x1b" not in r.stderr
+
+
 # -- a user's pattern cannot hang the import
 
 def test_a_backtracking_leaf_pattern_on_a_long_part_name_does_not_hang(tmp_path):
