@@ -11,7 +11,7 @@ from __future__ import annotations
 import signal
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import IO, TYPE_CHECKING, cast
 
 import click
 from rich.markup import escape
@@ -336,7 +336,7 @@ def main() -> None:
         _json_error(code, "Interrupted", common.interrupted_message(None))
     except click.ClickException as exc:
         try:
-            exc.show(file=console.PrintableStream(sys.stderr))  # a file name with escape sequences is shown escaped
+            exc.show(file=cast(IO[str], console.PrintableStream(sys.stderr)))  # escape sequences shown escaped
         except OSError:  # stderr is full or gone: the exit code (and --json) still say it
             pass
         code = exc.exit_code
