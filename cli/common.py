@@ -132,12 +132,7 @@ def run(body: Callable[[], int]) -> None:
     except console.OutputLost as exc:  # the report could not reach stdout: say so on stderr
         code = _fail(started, EXIT_BAD_INPUT, "OutputError", str(exc))
     except OSError as exc:
-        if exc.errno not in ENVIRONMENT_ERRNOS:
-            code = _internal(started, exc)
-        else:  # DESIGN.md section 3: bad input or environment is exit 2, naming the file
-            where = f"@{exc.filename}@: " if exc.filename else ""
-            code = _fail(started, EXIT_BAD_INPUT, "EnvironmentError",
-                         f"{where}{exc.strerror or exc}; {ENVIRONMENT_ERRNOS[exc.errno]}.")
+        code = os_failure(exc, started)
     except (MemoryError, ImportError, RecursionError) as exc:
         code = _fail(started, EXIT_BAD_INPUT, *environment_failure(exc))
     except RuntimeError as exc:
@@ -148,6 +143,15 @@ def run(body: Callable[[], int]) -> None:
     except Exception as exc:  # the top-level handler: anything else is our bug
         code = _internal(started, exc)
     sys.exit(console.finish(code))
+
+
+def os_failure(exc: OSError, started: float = 0.0) -> int:
+    """An OSError's exit code, said on stderr (and as the JSON error): the environment's (:data:`ENVIRONMENT_ERRNOS`,
+    exit 2 naming the file), else an internal error (exit 3, crash log)."""
+    if exc.errno not in ENVIRONMENT_ERRNOS:
+        return _internal(started, exc)
+    where = f"@{exc.filename}@: " if exc.filename else ""  # DESIGN.md section 3: exit 2, naming the file
+    return _fail(started, EXIT_BAD_INPUT, "EnvironmentError", f"{where}{exc.strerror or exc}; {ENVIRONMENT_ERRNOS[exc.errno]}.")
 
 
 def environment_failure(exc: BaseException) -> tuple[str, str]:

@@ -69,7 +69,7 @@ class OutputLost(Exception):
 lost: set[str] = set()
 
 
-def _give_up(name: str) -> None:
+def give_up(name: str) -> None:
     """Point the broken stream's descriptor at /dev/null: Python's flush at exit would fail on it again."""
     lost.add(name)
     stream = getattr(sys, name)
@@ -92,7 +92,7 @@ def write(name: str, text: str) -> None:
         stream.write(text)
         stream.flush()
     except OSError as exc:
-        _give_up(name)
+        give_up(name)
         if name == "stdout":
             raise OutputLost(exc) from None
 
@@ -126,7 +126,7 @@ class SafeConsole(Console):
         try:
             super().print(*objects, markup=bool(markup), **kwargs)
         except OSError as exc:
-            _give_up(name)
+            give_up(name)
             if name == "stdout":
                 raise OutputLost(exc) from None
 
@@ -152,7 +152,7 @@ def finish(code: int) -> int:
         try:
             stream.flush()
         except OSError:
-            _give_up(name)
+            give_up(name)
     if "stdout" in lost and code == 0:
         error(str(OutputLost(None)).replace("(it is closed)", "(a write failed)"))
         return 2
@@ -257,7 +257,7 @@ def print_table(table: Table, *, console: Console | None = None) -> None:
         target.print(table)
         return
     # Console.print(width=) is capped at the console's own width: a console of the table's width on the same file
-    Console(file=target.file, width=natural, color_system=target.color_system,  # type: ignore[arg-type]  # rich types the property str, the argument its names
+    SafeConsole(file=target.file, stderr=target.stderr, width=natural, color_system=target.color_system,  # type: ignore[arg-type]  # rich types the property str, the argument its names
             no_color=target.no_color).print(table)
 
 

@@ -8,6 +8,7 @@ their own modules and are added to the group at the bottom.
 
 from __future__ import annotations
 
+import errno
 import signal
 import sys
 from pathlib import Path
@@ -341,6 +342,12 @@ def main() -> None:
             pass
         code = exc.exit_code
         _json_error(code, type(exc).__name__, exc.format_message())
+    except OSError as exc:  # before ``run``: --help or --version to a full stdout, a --config that cannot be read
+        if exc.errno in (errno.ENOSPC, errno.EPIPE, errno.EBADF, errno.EIO) and exc.filename is None:
+            console.give_up("stdout")  # what was being printed is lost; ``finish`` says so and exits 2
+            code = 0
+        else:
+            code = common.os_failure(exc)
     except (ImportError, MemoryError, RecursionError) as exc:  # while a command loads its modules, before ``run``
         kind, message = common.environment_failure(exc)
         console.error(message)

@@ -186,6 +186,11 @@ def test_a_closed_or_full_stdout_is_exit_2_saying_so():
         r = _run(["validate", TREE, "--json"], stdout=full, stderr=subprocess.PIPE, text=True)
     assert_clean_exit(r)
     assert "stdout" in r.stderr and "No space left" in r.stderr
+    with open("/dev/full", "w") as full:  # a table wider than 80 columns, and click's own help
+        for args in (["inspect", TREE], ["--help"]):
+            r = _run(args, stdout=full, stderr=subprocess.PIPE, text=True)
+            assert_clean_exit(r)
+            assert "stdout" in r.stderr, (args, r.stderr)
 
 
 def test_a_full_or_closed_stderr_keeps_the_commands_own_exit_code(tmp_path):
