@@ -294,6 +294,19 @@ def test_an_address_space_limit_too_small_to_load_the_libraries_is_exit_2_needs_
     assert _run(["validate", "--help"], capture_output=True, preexec_fn=cap).returncode == 0
 
 
+def test_running_out_of_memory_mid_run_is_exit_2_naming_the_step(tmp_path):
+    # above the floor, a lattice of 512 nodes a side (gigabytes) does not fit a 2.6 GB address space
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (2600 << 20, 2600 << 20))
+
+    r = _run(["lb", TREE, "-o", tmp_path / "l.usda", "--resolution", "512", "--gather", "16", "--direct-samples", "16",
+              "--json"], capture_output=True, text=True, preexec_fn=cap)
+    assert_clean_exit(r)
+    message = assert_json_error(r)["error"]["message"]
+    assert "needs more memory" in message and "at the step 'lattice-Boltzmann" in message, message
+    assert not (tmp_path / "l.usda").exists()
+
+
 def test_an_import_that_fails_for_lack_of_memory_is_told_from_a_missing_module():
     from foliage_tools.cli.common import environment_failure
 
