@@ -12,7 +12,7 @@ from rich.table import Table
 from foliage_tools.cli import console
 from foliage_tools.cli.common import (
     parse_depth_resolution,
-    OUT, SCENE, parse_direct_samples, bake_options, common_options, direct_choice, direct_options, execute, gather_option,
+    OUT, SCENE, SEED, parse_direct_samples, bake_options, common_options, direct_choice, direct_options, execute, gather_option,
     leaf_optics_from_flags, run,
     grid_precision_option, setup_logging, volume_purpose_option,
 )
@@ -100,7 +100,7 @@ def smax_table(report: Report[SmaxStats]) -> Table:
               help="Sun photon paths (with --noise: the most traced).")
 @click.option("--noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=None,
               help="Stop at this per-leaf E_scattered noise (relative RMS), e.g. 0.01.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed: the same seed, the same result.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed: the same seed, the same result.")
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Threads [default: all cores]; results do not depend on it.")
 @bake_options
 @common_options
@@ -174,7 +174,7 @@ class BenchCommand(FoliageCommand):
               help="Most reference sun paths (it stops earlier at --noise).")
 @click.option("--noise", type=click.FloatRange(0, 1, min_open=True, max_open=True), default=0.02, show_default=True,
               help="Reference noise at which tracing stops.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Reference seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Reference seed.")
 @click.option("--direct-samples", default="auto", show_default=True, callback=parse_direct_samples, metavar="auto|N",
               help="Shadow rays per leaf for the exact E_direct every method is scored with.")
 @bake_options

@@ -87,13 +87,40 @@ def _asset(spec, base, flags: dict):
     return Asset(name=spec.name, path=spec.path, params=params)
 
 
+def _check_scheduler(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """``--scheduler``: an address Dask can connect to (``tcp://HOST:PORT``, or tls/ws/wss), checked before any
+    work instead of after the connect timeout. A bare ``HOST:PORT`` is Dask's ``tcp://HOST:PORT``."""
+    if value is None:
+        return None
+    from distributed.comm import parse_address
+    from distributed.comm.registry import get_backend
+
+    try:
+        scheme, location = parse_address(value)
+    except ValueError as exc:
+        raise click.BadParameter(f"{value!r} is not an address ({exc}); give tcp://HOST:PORT.", ctx=ctx,
+                                 param=param) from None
+    if scheme not in ("tcp", "tls", "ws", "wss"):
+        raise click.BadParameter(f"{value!r}: {scheme}:// is not a scheduler address a farm listens on; give "
+                                 "tcp://HOST:PORT (or tls://, ws://, wss://).", ctx=ctx, param=param)
+    try:
+        host, port = get_backend(scheme).get_address_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise click.BadParameter(f"{value!r} is not HOST:PORT ({exc}); give tcp://HOST:PORT.", ctx=ctx,
+                                 param=param) from None
+    if not host or not 0 < port < 65536:
+        raise click.BadParameter(f"{value!r}: give a host and a port from 1 to 65535 (tcp://HOST:PORT).", ctx=ctx,
+                                 param=param)
+    return value
+
+
 @click.command(cls=FoliageCommand, common=("--output", "--workers", "--scheduler", "--dry-run", "--force", "--resolution"))
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("-o", "--output", "outroot", required=True, type=click.Path(path_type=Path, file_okay=False),
               help="Output root: each asset bakes into OUTROOT/<name>/.")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Local worker processes [default: one per core].")
-@click.option("--scheduler", metavar="tcp://HOST:PORT", default=None,
+@click.option("--scheduler", metavar="tcp://HOST:PORT", default=None, callback=_check_scheduler,
               help="Bake on this Dask scheduler (a farm) instead of locally.")
 @click.option("--dry-run", is_flag=True, help="Say which assets would bake and why; write nothing.")
 @click.option("--force", is_flag=True, help="Bake every asset, even those the cache says are unchanged.")
@@ -136,7 +163,7 @@ def batch(inputs: tuple[Path, ...], outroot: Path, workers: int | None, schedule
         except KeyboardInterrupt:
             message = (f"interrupted; the assets finished so far are recorded in @{outroot / 'batch.json'}@: run the same "
                        "command again to go on from there.")
-            console.stderr.print(escape(message), highlight=False, soft_wrap=True)
+            console.stderr.print(message, highlight=False, soft_wrap=True)
             if as_json:
                 console.print_json(error_report("batch", [str(i) for i in inputs], 0.0, EXIT_INTERRUPTED, "Interrupted", message))
             return EXIT_INTERRUPTED
@@ -149,8 +176,7 @@ def batch(inputs: tuple[Path, ...], outroot: Path, workers: int | None, schedule
             _render(report, dry_run)
         for name in failed:
             e = entries[name]["error"]
-            console.stderr.print(f"[red]failed:[/red] {escape(name)} (exit {e['code']}): {escape(e['message'])}",
-                                 highlight=False, markup=True, soft_wrap=True)
+            console.error(f"{name} (exit {e['code']}): {e['message']}", "failed")
         return EXIT_FINDINGS if failed else 0
 
     run(body)

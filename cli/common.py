@@ -10,6 +10,7 @@ from __future__ import annotations
 import datetime as _dt
 import errno
 import logging
+import math
 import os
 import sys
 import tempfile
@@ -19,15 +20,54 @@ from pathlib import Path
 from typing import Callable
 
 import click
-from rich.markup import escape
 
 from foliage_tools import __version__
 from foliage_tools.cli import console
 from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_FINDINGS, EXIT_INTERNAL, EXIT_INTERRUPTED, FoliageError
 from foliage_tools.pipeline.report import Progress, Report, S
 
-SCENE = click.argument("scene", type=click.Path(path_type=Path, dir_okay=True))
-OUT = click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), help="Output layer (.usda/.usdc); .vdb grids go beside it.")
+#: Bytes of a file name that the writes need beyond the name itself: USD's save writes a temporary beside the layer
+#: whose name is the layer's and a little more (a .usda of 254 bytes fails, 253 is written).
+NAME_ROOM = 8
+
+
+def check_output_name(ctx: click.Context, param: click.Parameter, value: Path | None) -> Path | None:
+    """``-o``: a file name that fits its filesystem with room for the temporaries the writes make, and holds no
+    control character, refused before any work (either made USD's save fail after the work)."""
+    if value is None:
+        return None
+    control = [c for c in str(value) if ord(c) < 32 or ord(c) == 127]
+    if control:  # USD refuses them in the asset paths a layer writes (its grids'), after the work
+        raise click.BadParameter(f"@{console.printable(str(value))}@ has the control character {control[0]!r} in it, which USD asset paths "
+                                 "cannot hold: choose a name without it.", ctx=ctx, param=param)
+    parent = value.parent if str(value.parent) else Path(".")
+    try:
+        limit = os.pathconf(parent, "PC_NAME_MAX")
+    except (OSError, ValueError):  # a folder that does not exist yet is named by the output checks
+        limit = 255
+    size = len(os.fsencode(value.name))
+    if size > limit - NAME_ROOM:
+        raise click.BadParameter(f"@{value}@: the file name is {size} bytes long; the writes need it at most "
+                                 f"{limit - NAME_ROOM} bytes on this filesystem (it allows {limit}, and a temporary "
+                                 "beside the output takes the rest): choose a shorter name.", ctx=ctx, param=param)
+    return value
+
+
+def check_scene(ctx: click.Context, param: click.Parameter, value: Path | None) -> Path | None:
+    """SCENE of a command that writes a layer over it: no control character in its path, which the layer names as
+    its sublayer and USD asset paths cannot hold (refused before any work; inspect and validate read it)."""
+    if value is None or not any(p.name in ("out", "outdir", "outroot") for p in ctx.command.params):
+        return value
+    control = [c for c in str(value) if ord(c) < 32 or ord(c) == 127]
+    if control:
+        raise click.BadParameter(f"@{console.printable(str(value))}@ has the control character {control[0]!r} in it, and the layer written "
+                                 "over it names it as a USD asset path, which cannot hold one: rename the file (or "
+                                 "link it) to a name without it.", ctx=ctx, param=param)
+    return value
+
+
+SCENE = click.argument("scene", type=click.Path(path_type=Path, dir_okay=True), callback=check_scene)
+OUT = click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), callback=check_output_name, help="Output layer (.usda/.usdc); .vdb grids go beside it.")
 JSON = click.option("--json", "as_json", is_flag=True, help="One JSON report on stdout, no tables.")
 
 
@@ -82,38 +122,134 @@ def run(body: Callable[[], int]) -> None:
     try:
         code = body()
     except FoliageError as exc:
-        console.stderr.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False, markup=True, soft_wrap=True)
-        code = exc.exit_code
-        _json_error(started, code, type(exc).__name__, str(exc))
+        code = _fail(started, exc.exit_code, type(exc).__name__, str(exc))
     except KeyboardInterrupt as exc:
         console.stderr.print(interrupted_message(exc), highlight=False, soft_wrap=True)
         code = EXIT_INTERRUPTED
         _json_error(started, code, "Interrupted", interrupted_message(exc))
     except (click.exceptions.Exit, click.ClickException):
         raise
+    except console.OutputLost as exc:  # the report could not reach stdout: say so on stderr
+        code = _fail(started, EXIT_BAD_INPUT, "OutputError", str(exc))
     except OSError as exc:
-        if exc.errno not in ENVIRONMENT_ERRNOS:
+        code = os_failure(exc, started)
+    except (MemoryError, ImportError, RecursionError) as exc:
+        code = _fail(started, EXIT_BAD_INPUT, *environment_failure(exc))
+    except RuntimeError as exc:
+        if "can't start new thread" in str(exc):  # no memory left for a thread's stack
+            code = _fail(started, EXIT_BAD_INPUT, "MemoryError", memory_message(exc))
+        else:
             code = _internal(started, exc)
-        else:  # DESIGN.md section 3: bad input or environment is exit 2, naming the file
-            where = f"@{exc.filename}@: " if exc.filename else ""
-            message = f"{where}{exc.strerror or exc}; {ENVIRONMENT_ERRNOS[exc.errno]}."
-            console.stderr.print(f"[red]error:[/red] {escape(message)}", highlight=False, markup=True, soft_wrap=True)
-            code = EXIT_BAD_INPUT
-            _json_error(started, code, "EnvironmentError", message)
-    except MemoryError:
-        message = ("this job needs more memory than is available; lower its size (--resolution, --directions, --paths, ...). "
-                   "`foliage plan` estimates the memory of a bake.")
-        console.stderr.print(f"[red]error:[/red] {escape(message)}", highlight=False, markup=True, soft_wrap=True)
-        code = EXIT_BAD_INPUT
-        _json_error(started, code, "MemoryError", message)
     except Exception as exc:  # the top-level handler: anything else is our bug
         code = _internal(started, exc)
-    sys.exit(code)
+    sys.exit(console.finish(code))
+
+
+def os_failure(exc: OSError, started: float = 0.0) -> int:
+    """An OSError's exit code, said on stderr (and as the JSON error): the environment's (:data:`ENVIRONMENT_ERRNOS`,
+    exit 2 naming the file), else an internal error (exit 3, crash log)."""
+    if exc.errno not in ENVIRONMENT_ERRNOS:
+        return _internal(started, exc)
+    where = f"@{exc.filename}@: " if exc.filename else ""  # DESIGN.md section 3: exit 2, naming the file
+    return _fail(started, EXIT_BAD_INPUT, "EnvironmentError", f"{where}{exc.strerror or exc}; {ENVIRONMENT_ERRNOS[exc.errno]}.")
+
+
+def environment_failure(exc: BaseException) -> tuple[str, str]:
+    """The error type and message (exit 2) of a MemoryError, an ImportError or a RecursionError: out of memory
+    (:func:`memory_message`), a module that is missing or broken, or an input nested deeper than Python follows."""
+    if isinstance(exc, RecursionError):  # a --config of arrays in arrays, ...
+        return "InputError", f"an input is nested too deeply to read ({exc}); flatten it."
+    if lacks_memory(exc):
+        return "MemoryError", memory_message(exc)
+    return "EnvironmentError", missing_module_message(exc)
+
+
+#: The address space (``ulimit -v``) the libraries need to load and a small bake to run, measured on 2 cores
+#: (``lb`` at resolution 8: killed by SIGSEGV inside USD's or numba's start-up at 1,800 MB, whole at 2,200 MB).
+#: Below it they crash in C code, where no message can be given, so a lower limit is refused up front.
+MIN_ADDRESS_SPACE_MB = 2200
+
+
+def address_space_problem() -> str | None:
+    """The exit-2 message when the address-space limit (``ulimit -v``) is below :data:`MIN_ADDRESS_SPACE_MB`."""
+    import resource
+
+    soft, _hard = resource.getrlimit(resource.RLIMIT_AS)
+    if soft == resource.RLIM_INFINITY or soft >= MIN_ADDRESS_SPACE_MB << 20:
+        return None
+    return (f"this job needs more memory than is available (before loading its libraries): the address-space limit "
+            f"is {soft >> 20:,} MB (ulimit -v {soft >> 10}) and foliage needs at least {MIN_ADDRESS_SPACE_MB:,} MB to "
+            f"load USD, OpenVDB and numba (below that they crash); raise it (ulimit -v {MIN_ADDRESS_SPACE_MB << 10} "
+            "or more, or unlimited).")
+
+
+#: What the errors of a library that could not get memory say (dlopen's ENOMEM, C++'s std::bad_alloc, numpy's).
+_NO_MEMORY = ("cannot allocate memory", "failed to map segment", "out of memory", "bad_alloc", "unable to allocate",
+              "memoryerror")
+
+
+def lacks_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` (a MemoryError, or an ImportError from a library that could not be loaded) comes from a lack
+    of memory: the exception or one it was raised from is a MemoryError, or its message says so. "cannot allocate
+    memory in static TLS block" is a loader limit, not memory, and is not counted."""
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        seen.add(id(cur))
+        text = str(cur).lower()
+        if isinstance(cur, MemoryError) or (any(s in text for s in _NO_MEMORY) and "static tls" not in text):
+            return True
+        cur = cur.__cause__ or cur.__context__
+    return False
+
+
+def memory_message(exc: BaseException) -> str:
+    """exit 2 "needs more memory", naming the step it happened at (the progress step, or the library loading)."""
+    module = _failed_module(exc)
+    if module is not None:
+        stage = f"while loading the {module} library"
+    elif isinstance(exc, ImportError):
+        stage = f"while loading a library: {exc}"
+    elif console.last_step:
+        stage = f"at the step {console.last_step!r}"
+    else:
+        stage = "before the first step"
+    return (f"this job needs more memory than is available ({stage}); raise the memory limit (ulimit -v) or lower "
+            "the job's size (--resolution, --directions, --paths, ...). `foliage plan` estimates the memory of a bake.")
+
+
+def _failed_module(exc: BaseException) -> str | None:
+    """The top-level module whose import raised ``exc``, if the traceback shows one (an ImportError's name, or the
+    first frame of an import in progress)."""
+    name = getattr(exc, "name", None)
+    if isinstance(exc, ImportError) and name:
+        return name.split(".")[0]
+    tb = exc.__traceback__
+    while tb is not None:
+        code = tb.tb_frame.f_code
+        if code.co_name == "<module>" and tb.tb_frame.f_globals.get("__name__") not in (None, "__main__"):
+            return tb.tb_frame.f_globals["__name__"].split(".")[0]
+        tb = tb.tb_next
+    return None
+
+
+def missing_module_message(exc: BaseException) -> str:
+    name = getattr(exc, "name", None)
+    what = f"the module {name!r}" if name else "a module"
+    return (f"{what} could not be imported ({exc}): this Python lacks one of foliage-tools' dependencies, or has a "
+            "broken one; reinstall them (`pip install -e .`, and Debian's python3-openvdb for pyopenvdb).")
+
+
+def _fail(started: float, code: int, kind: str, message: str) -> int:
+    """Say ``message`` on stderr, with ``--json`` as the JSON error object too, and return ``code``."""
+    console.error(message)
+    _json_error(started, code, kind, message)
+    return code
 
 
 def _internal(started: float, exc: BaseException) -> int:
     log = crash_log(exc)
-    console.stderr.print(f"[red]internal error:[/red] {type(exc).__name__}: {escape(str(exc))}\nA crash log is at {log}; please attach it to a bug report.", highlight=False, soft_wrap=True)
+    console.error(f"{type(exc).__name__}: {exc}\nA crash log is at {log}; please attach it to a bug report.", "internal error")
     _json_error(started, EXIT_INTERNAL, type(exc).__name__, f"internal error: {exc}", crash_log=str(log))
     return EXIT_INTERNAL
 
@@ -132,12 +268,12 @@ def _json_error(started: float, code: int, kind: str, message: str, **extra) -> 
     ctx = click.get_current_context(silent=True)
     if ctx is None or not ctx.params.get("as_json"):
         return
-    scene = ctx.params.get("scene")
+    scene = ctx.params.get("scene", ctx.params.get("model"))  # import: MODEL
     given = ctx.params.get("inputs")  # batch: INPUTS...
     inputs = [str(scene)] if scene is not None else [str(i) for i in given] if given else []
     try:
         console.print_json(error_report(ctx.info_name, inputs, time.perf_counter() - started, code, kind, message, **extra))
-    except OSError:  # stdout is gone (a closed pipe): the exit code still says it
+    except console.OutputLost:  # stdout is gone (a closed pipe): the exit code and stderr still say it
         pass
 
 
@@ -157,6 +293,9 @@ class _StderrHandler(logging.StreamHandler):
     @stream.setter
     def stream(self, _value) -> None:
         pass
+
+    def format(self, record: logging.LogRecord) -> str:
+        return console.printable(super().format(record))  # a path with an escape sequence in it is shown, not acted on
 
 
 def setup_logging(verbose: int, quiet: bool) -> None:
@@ -206,6 +345,9 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
         raise click.BadParameter(f"@{value}@: no such file.", ctx=ctx, param_hint="--config") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise click.BadParameter(f"@{value}@ is not valid TOML ({exc}).", ctx=ctx, param_hint="--config") from None
+    except RecursionError:  # arrays or tables nested thousands deep: more than Python's parser follows
+        raise click.BadParameter(f"@{value}@ nests arrays or tables too deeply to read; an option file needs at most "
+                                 "one level (a [COMMAND] table).", ctx=ctx, param_hint="--config") from None
     known = _long_names(ctx.command)
     root = ctx.find_root().command
     others: set[str] = set()
@@ -267,18 +409,73 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
 
 
 def check_sun(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
-    """``--sun AZ,EL`` checked where it is given (a flag or a --config key, which then names the file), kept as
-    text: the stages parse it (``geometry.sun.parse_sun``)."""
+    """``--sun AZ,EL`` checked where it is given (a flag or a --config key, which then names the file), once for
+    every command that takes it: azimuth in [0, 360) (another value is refused, naming the one it stands for),
+    elevation in (0, 90] (the bakes need a sun above the horizon). Kept as text: the stages parse it
+    (``geometry.sun.parse_sun``)."""
     if value is None:
         return None
     from foliage_tools.errors import UsageError
     from foliage_tools.geometry.sun import parse_sun
 
     try:
-        parse_sun(value)
+        az, el = parse_sun(value)
     except UsageError as exc:
         raise click.BadParameter(str(exc), ctx=ctx, param=param) from None
+    given = float(str(value).split(",")[0])
+    if not 0.0 <= given < 360.0:
+        raise click.BadParameter(f"the azimuth must be from 0 up to 360 degrees, got {given:g} (the same direction "
+                                 f"is {az:g}): give --sun {az:g},{el:g}.", ctx=ctx, param=param)
+    if not 0.0 < el <= 90.0:
+        raise click.BadParameter(f"the sun is at or below the horizon (elevation {el:g} degrees); the bakes need a "
+                                 "sun above it: give an elevation above 0 and at most 90.", ctx=ctx, param=param)
     return value
+
+
+class FiniteFloat(click.types.FloatParamType):
+    """A number option that refuses nan and inf (click's FLOAT takes them, and a range passes nan)."""
+
+    name = "number"
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return number
+
+
+class FiniteFloatRange(click.FloatRange):
+    """:class:`click.FloatRange` that refuses nan and inf first (nan compares false, so it passes any range)."""
+
+    def convert(self, value, param, ctx):
+        FINITE_FLOAT.convert(value, param, ctx)
+        return super().convert(value, param, ctx)
+
+
+FINITE_FLOAT = FiniteFloat()
+
+
+def finite_floats(group: click.Group) -> None:
+    """Every float option of every command of ``group`` refuses nan and inf at the option (a flag, a --config key,
+    a batch manifest's key), with click's message naming it: the one place, so a new option cannot forget."""
+    for command in group.commands.values():
+        for param in command.params:
+            kind = param.type
+            if type(kind) is click.FloatRange:
+                param.type = FiniteFloatRange(kind.min, kind.max, min_open=kind.min_open, max_open=kind.max_open,
+                                              clamp=kind.clamp)
+            elif type(kind) is click.types.FloatParamType:
+                param.type = FINITE_FLOAT
+
+
+class _SeedRange(click.IntRange):
+    """A random seed, 0 to 2**63 - 1: USD stores it as a 64-bit signed integer (its help says so in short)."""
+
+    def _describe_range(self) -> str:
+        return "0<=x<2**63"
+
+
+SEED = _SeedRange(0, 2**63 - 1)
 
 
 def config_option(fn: Callable) -> Callable:
@@ -443,6 +640,6 @@ def execute(stage: Callable[[Progress], Report[S]], *, as_json: bool, quiet: boo
                 console.stdout.print(f"wrote {o}", highlight=False, soft_wrap=True)
     if report.findings:  # the outputs are written, but the bake failed its own accuracy check (DESIGN.md section 3)
         for f in report.findings:
-            console.stderr.print(f"[red]accuracy check failed:[/red] {escape(f)}", highlight=False, markup=True, soft_wrap=True)
+            console.error(f, "accuracy check failed")
         return EXIT_FINDINGS
     return 0

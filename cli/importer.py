@@ -11,7 +11,7 @@ from rich.table import Table
 
 from foliage_tools.cli.helpformat import FoliageCommand
 from foliage_tools.cli import console
-from foliage_tools.cli.common import common_options, execute, run, setup_logging
+from foliage_tools.cli.common import check_output_name, common_options, execute, run, setup_logging
 
 if TYPE_CHECKING:
     from foliage_tools.pipeline.report import Report
@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 @click.command(name="import", cls=FoliageCommand, common=("--output", "--up-axis", "--meters-per-unit", "--leaves", "--all-leaves"))
 @click.argument("model", type=click.Path(path_type=Path, dir_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path, dir_okay=False),
-              help="Output USD layer (.usda/.usdc) holding the tree asset.")
+              callback=check_output_name, help="Output USD layer (.usda/.usdc) holding the tree asset.")
 @click.option("--up-axis", type=click.Choice(["Y", "Z"], case_sensitive=False), default="Y", show_default=True,
               help="The model's up axis, written as upAxis (not rotated).")
 @click.option("--meters-per-unit", type=float, default=1.0, show_default=True,

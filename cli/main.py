@@ -8,10 +8,11 @@ their own modules and are added to the group at the bottom.
 
 from __future__ import annotations
 
+import errno
 import signal
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import IO, TYPE_CHECKING, cast
 
 import click
 from rich.markup import escape
@@ -21,7 +22,7 @@ from foliage_tools import __version__
 from foliage_tools.cli import common, console
 from foliage_tools.cli.helpformat import FoliageCommand
 from foliage_tools.cli.common import OUT, SCENE, common_options, config_option, execute, run, setup_logging, volume_purpose_option
-from foliage_tools.errors import EXIT_FINDINGS, EXIT_INTERRUPTED
+from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_FINDINGS, EXIT_INTERRUPTED
 from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE
 
 if TYPE_CHECKING:
@@ -80,7 +81,7 @@ def inspect(scene: Path, as_json: bool, quiet: bool, verbose: int) -> None:
         console.warn(report.warnings, quiet)
         if not quiet:
             s = report.stats
-            table = Table(title=f"{scene}  (up {s['up_axis']}, {s['meters_per_unit']} m/unit)")
+            table = Table(title=f"{escape(str(scene))}  (up {s['up_axis']}, {s['meters_per_unit']} m/unit)")
             for col in ("prototype", "kind", "inst.", "leaves", "leaf tris", "wood tris", "leaf area", "size"):
                 table.add_column(col, justify="left" if col in ("prototype", "kind") else "right", overflow="fold")
             for p in s["prototypes"]:
@@ -143,7 +144,7 @@ def validate(scene: Path | None, strict: bool, list_rules: bool, as_json: bool, 
         elif not quiet:
             for f in report.stats["findings"]:
                 colour = "red" if f["severity"] == "error" else "yellow"
-                console.stdout.print(f"[{colour}]{f['severity']}[/{colour}] {escape('[' + f['rule'] + ']')} {escape(f['message'])}", highlight=False, soft_wrap=True)
+                console.stdout.print(f"[{colour}]{f['severity']}[/{colour}] {escape('[' + f['rule'] + ']')} {escape(f['message'])}", highlight=False, markup=True, soft_wrap=True)
             s = report.stats
             verdict = "FAILED" if failed else "passed"
             console.stdout.print(f"{scene}: {verdict} ({s['errors']} error(s), {s['warnings']} warning(s){', strict' if strict else ''})", highlight=False)
@@ -293,6 +294,7 @@ def _add_commands() -> None:
 
     for command in (lb, spp, smax, reference, bench, bake, batch, preview, import_model):
         cli.add_command(command)
+    common.finite_floats(cli)
 
 
 _add_commands()
@@ -322,17 +324,35 @@ def main() -> None:
     SIGHUP are interrupts too.
     """
     install_interrupt_handlers()
+    refusal = None if {"-h", "--help", "--version"} & set(sys.argv[1:]) else common.address_space_problem()
     try:
-        code = cli.main(prog_name="foliage", standalone_mode=False)
+        code = 2 if refusal else cli.main(prog_name="foliage", standalone_mode=False)
+        if refusal:
+            console.error(refusal)
+            _json_error(code, "MemoryError", refusal)
     except click.exceptions.Abort:
         console.stderr.print(common.interrupted_message(None))
         code = EXIT_INTERRUPTED
         _json_error(code, "Interrupted", common.interrupted_message(None))
     except click.ClickException as exc:
-        exc.show()
+        try:
+            exc.show(file=cast(IO[str], console.PrintableStream(sys.stderr)))  # escape sequences shown escaped
+        except OSError:  # stderr is full or gone: the exit code (and --json) still say it
+            pass
         code = exc.exit_code
         _json_error(code, type(exc).__name__, exc.format_message())
-    sys.exit(code or 0)
+    except OSError as exc:  # before ``run``: --help or --version to a full stdout, a --config that cannot be read
+        if exc.errno in (errno.ENOSPC, errno.EPIPE, errno.EBADF, errno.EIO) and exc.filename is None:
+            console.give_up("stdout")  # what was being printed is lost; ``finish`` says so and exits 2
+            code = 0
+        else:
+            code = common.os_failure(exc)
+    except (ImportError, MemoryError, RecursionError) as exc:  # while a command loads its modules, before ``run``
+        kind, message = common.environment_failure(exc)
+        console.error(message)
+        code = EXIT_BAD_INPUT
+        _json_error(code, kind, message)
+    sys.exit(console.finish(code or 0))
 
 
 def _json_error(code: int, kind: str, message: str) -> None:
@@ -342,7 +362,10 @@ def _json_error(code: int, kind: str, message: str) -> None:
         return
     words = [a for a in args if not a.startswith("-")]
     command = words[0] if words and words[0] in cli.commands else None
-    console.print_json(common.error_report(command, words[1:2] if command else [], 0.0, code, kind, message))
+    try:
+        console.print_json(common.error_report(command, words[1:2] if command else [], 0.0, code, kind, message))
+    except console.OutputLost:  # stdout is gone: stderr and the exit code say it
+        pass
 
 
 if __name__ == "__main__":

@@ -4,13 +4,17 @@ Reading and clean-ups are pymeshlab's (``scene.meshfile``); the USD layout is
 ``scene.asset``'s. Leaves vs wood: a part whose name (OBJ object/group or
 material, glTF mesh) matches ``leaf_pattern`` holds leaves, the rest is wood;
 ``all_leaves`` makes every part leaves (a file of leaf cards only).
+
+The pattern is matched by RE2 (google-re2), whose time is linear in the name's length: a pattern such as
+``(a+)+$``, which backtracks for ever in Python's ``re`` on a long name, is matched at once. RE2 has no
+look-arounds or backreferences.
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -41,10 +45,23 @@ class ImportParams:
             raise UsageError(f"--up-axis {self.up_axis!r}: USD stages are Y-up or Z-up.")
         if not (np.isfinite(self.meters_per_unit) and self.meters_per_unit > 0):
             raise UsageError(f"--meters-per-unit {self.meters_per_unit}: must be a finite length > 0.")
-        try:
-            re.compile(self.leaf_pattern)
-        except re.error as exc:
-            raise UsageError(f"--leaves {self.leaf_pattern!r} is not a regular expression ({exc}).") from None
+        leaf_matcher(self.leaf_pattern)
+
+
+def leaf_matcher(pattern: str) -> Any:
+    """``pattern`` compiled by RE2, case-insensitive: :class:`UsageError` naming it when RE2 cannot read it."""
+    import re2
+
+    options = re2.Options()
+    options.case_sensitive = False
+    options.log_errors = False  # the error is ours to say, once
+    try:
+        return re2.compile(pattern, options)
+    except re2.error as exc:
+        why = exc.args[0].decode("utf-8", "replace") if exc.args and isinstance(exc.args[0], bytes) else str(exc)
+        raise UsageError(f"--leaves {pattern!r} is not a regular expression RE2 reads ({why}); it takes Python's "
+                         "syntax but for look-arounds and backreferences, which keeps a match linear in the name's "
+                         "length.") from None
 
 
 def run_import(path: Path, out: Path, params: ImportParams, *, progress: Progress | None = None) -> Report[ImportStats]:
@@ -57,7 +74,7 @@ def run_import(path: Path, out: Path, params: ImportParams, *, progress: Progres
     if out.resolve() == path.resolve():
         raise UsageError(f"@{out}@ is the input file; choose another output (inputs are never modified).")
     progress.step(f"reading {path}")
-    pattern = re.compile(".*" if params.all_leaves else params.leaf_pattern, re.IGNORECASE)
+    pattern = leaf_matcher(".*" if params.all_leaves else params.leaf_pattern)
     parts, warnings = read_parts(path, leaf_pattern=pattern, options=params.clean)
     report.warnings += warnings
     if not any(p.is_leaf for p in parts):
