@@ -211,7 +211,7 @@ def memory_message(exc: BaseException) -> str:
     elif isinstance(exc, ImportError):
         stage = f"while loading a library: {exc}"
     elif console.last_step:
-        stage = f"at the step {console.last_step!r}"
+        stage = f"at the step {console.shown_path(console.last_step)!r}"
     else:
         stage = "before the first step"
     return (f"this job needs more memory than is available ({stage}); raise the memory limit (ulimit -v) or lower "

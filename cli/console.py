@@ -8,6 +8,7 @@ import logging
 import os
 import re
 import sys
+import threading
 import time
 from typing import Any
 
@@ -159,17 +160,32 @@ def finish(code: int) -> int:
     return code
 
 
-#: Without a terminal (a pipeline step, CI), a long step's progress is printed as a line at most this often (s).
-PLAIN_EVERY_S = 30.0
+#: Without a terminal (a pipeline step, CI), a line at least this often (s) says which step the run is at and, where
+#: the step counts its work, its share done: a log that goes quiet for longer reads as a hung job.
+PLAIN_EVERY_S = 10.0
 
 
 #: The step the run is at (the last :meth:`RichProgress.step`), named by an out-of-memory error.
 last_step: str | None = None
 
+#: A result's hidden staging folder inside its output folder (``scene.atomic``: ``.LABEL.tmp-PID-TOKEN/``): progress
+#: names the output folder, where the files will be, instead.
+_STAGING_PART = re.compile(r"\.[^/\s]+\.tmp-\d+-[0-9a-f]+/")
+
+
+def shown_path(text: str) -> str:
+    """``text`` with every staging folder of a path left out: ``out/.tree.bake.tmp-8229-ab12/tree.lb.usda`` is
+    shown as ``out/tree.lb.usda``, the name the file has once the result is committed."""
+    return _STAGING_PART.sub("", text)
+
 
 class RichProgress:
     """Implements :class:`foliage_tools.pipeline.report.Progress`: a rich bar on stderr when it is a terminal, else
-    (a pipeline step, a CI log) plain lines, one per step and one per :data:`PLAIN_EVERY_S` seconds of a long one."""
+    (a pipeline step, a CI log) plain lines: one per step, and one at least every :data:`PLAIN_EVERY_S` seconds of
+    a long one (its share done when it counts its work, else how long it has run), from a thread of its own.
+
+    The heartbeat thread runs while the main thread computes in code that lets go of Python's lock (numba's
+    ``nogil`` kernels, Embree, numpy); a call that holds it delays the line until it returns."""
 
     def __init__(self, enabled: bool) -> None:
         self.enabled = enabled and stderr.is_terminal
@@ -177,7 +193,10 @@ class RichProgress:
         self._progress: Progress | None = None
         self._task: TaskID | None = None
         self._start = time.monotonic()
-        self._line: list[Any] | None = None  # plain mode: [message, total, done, time of the last line]
+        self._line: list[Any] | None = None  # plain mode: [message, total, done, time of the last line, step start]
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._beat: threading.Thread | None = None
 
     def __enter__(self) -> "RichProgress":
         if self.enabled:
@@ -186,38 +205,63 @@ class RichProgress:
                 TimeElapsedColumn(), console=stderr, transient=True,
             )
             self._progress.__enter__()
+        if self.plain:
+            self._beat = threading.Thread(target=self._heartbeat, name="foliage-progress", daemon=True)
+            self._beat.start()
         return self
 
     def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._beat is not None:
+            self._beat.join(timeout=2.0)
         if self._progress is not None:
             self._progress.__exit__(*exc)
 
     def _print(self, text: str) -> None:
-        write("stderr", f"[{time.monotonic() - self._start:7.1f} s] {printable(text)}\n")
+        write("stderr", f"[{time.monotonic() - self._start:7.1f} s] {printable(shown_path(text))}\n")
+
+    def _status(self, line: list[Any], now: float, *, beat: bool = False) -> str:
+        """The step's share done (and, from the heartbeat, how long it has run), or how long it has run."""
+        message, total, done, _, began = line
+        if total:
+            running = f", running {now - began:.0f} s" if beat else ""
+            return f"{message}: {100.0 * done / total:.0f} % ({done:,}/{total:,}){running}"
+        return f"{message}: still running ({now - began:.0f} s)"
+
+    def _heartbeat(self) -> None:
+        while not self._stop.wait(min(1.0, PLAIN_EVERY_S) or 0.05):
+            with self._lock:
+                line, now = self._line, time.monotonic()
+                if line is not None and now - line[3] >= PLAIN_EVERY_S:
+                    self._print(self._status(line, now, beat=True))
+                    line[3] = now
 
     def step(self, message: str, total: int | None = None) -> None:
         global last_step
         last_step = message
         if self.plain:
-            self._print(message)
-            self._line = [message, total, 0, time.monotonic()]
+            with self._lock:
+                self._print(message)
+                now = time.monotonic()
+                self._line = [message, total, 0, now, now]
             return
         if self._progress is None:
             # no bar (-q or --json): the steps still reach a log (-v) line by line
-            logging.getLogger("foliage").info(message)
+            logging.getLogger("foliage").info(shown_path(message))
             return
         if self._task is not None:
             self._progress.update(self._task, visible=False)
-        self._task = self._progress.add_task(escape(printable(message)), total=total)
+        self._task = self._progress.add_task(escape(printable(shown_path(message))), total=total)
 
     def advance(self, n: int = 1) -> None:
         if self.plain and self._line is not None:
-            line = self._line
-            line[2] += n
-            now = time.monotonic()
-            if line[1] and now - line[3] >= PLAIN_EVERY_S:
-                self._print(f"{line[0]}: {100.0 * line[2] / line[1]:.0f} % ({line[2]:,}/{line[1]:,})")
-                line[3] = now
+            with self._lock:
+                line = self._line
+                line[2] += n
+                now = time.monotonic()
+                if line[1] and now - line[3] >= PLAIN_EVERY_S:
+                    self._print(self._status(line, now))
+                    line[3] = now
             return
         if self._progress is not None and self._task is not None:
             self._progress.advance(self._task, n)
