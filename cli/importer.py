@@ -22,8 +22,8 @@ if TYPE_CHECKING:
 @click.argument("model", type=click.Path(path_type=Path, dir_okay=False))
 @click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path, dir_okay=False),
               callback=check_output_name, help="Output USD layer (.usda/.usdc) holding the tree asset.")
-@click.option("--up-axis", type=click.Choice(["Y", "Z"], case_sensitive=False), default="Y", show_default=True,
-              help="The model's up axis, written as upAxis (not rotated).")
+@click.option("--up-axis", type=click.Choice(["auto", "Y", "Z"], case_sensitive=False), default="auto", show_default=True,
+              help="The model's up axis, written as upAxis (not rotated); auto: from the trunk.")
 @click.option("--meters-per-unit", type=float, default=1.0, show_default=True,
               help="Metres per model unit (0.01 for centimetres).")
 @click.option("--leaves", "leaf_pattern", default=None, metavar="REGEX",
@@ -50,7 +50,7 @@ def import_model(model: Path, out: Path, up_axis: str, meters_per_unit: float, l
 
     \b
     Examples:
-      foliage import oak.obj -o oak.usda --up-axis Z
+      foliage import oak.obj -o oak.usda   # up axis from the geometry (Z here)
       foliage import tree.glb -o tree.usda --leaves 'leaf|frond'
       foliage import cards.ply -o cards.usda --all-leaves --meters-per-unit 0.01
     """
