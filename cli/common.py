@@ -7,6 +7,7 @@ log), 130 interrupted.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import errno
 import logging
@@ -17,13 +18,13 @@ import tempfile
 import time
 import traceback
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 import click
 
 from foliage_tools import __version__
 from foliage_tools.cli import console
-from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_FINDINGS, EXIT_INTERNAL, EXIT_INTERRUPTED, FoliageError
+from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_FINDINGS, EXIT_INTERNAL, EXIT_INTERRUPTED, FoliageError, OutputError
 from foliage_tools.pipeline.report import Progress, Report, S
 
 #: Bytes of a file name that the writes need beyond the name itself: USD's save writes a temporary beside the layer
@@ -50,7 +51,44 @@ def check_output_name(ctx: click.Context, param: click.Parameter, value: Path | 
         raise click.BadParameter(f"@{value}@: the file name is {size} bytes long; the writes need it at most "
                                  f"{limit - NAME_ROOM} bytes on this filesystem (it allows {limit}, and a temporary "
                                  "beside the output takes the rest): choose a shorter name.", ctx=ctx, param=param)
+    ctx.meta.setdefault(OUTPUT_FOLDERS, []).append(parent)
     return value
+
+
+#: ``ctx.meta`` key: the folders the command's output files go into (:func:`check_output_name`), made by
+#: :func:`execute` before the work when they are missing.
+OUTPUT_FOLDERS = "foliage.output_folders"
+
+
+@contextlib.contextmanager
+def output_folders(folders: list[Path]) -> Iterator[None]:
+    """Make the missing ``folders`` (and those above them) before the work; if the work fails, remove again the
+    ones made here that are still empty, so a failed run leaves nothing behind."""
+    made: list[Path] = []
+    try:
+        for folder in folders:
+            missing = []
+            d = folder.absolute()
+            while not d.exists() and d != d.parent:
+                missing.append(d)
+                d = d.parent
+            for d in reversed(missing):
+                try:
+                    d.mkdir()
+                except FileExistsError:
+                    continue
+                except OSError as exc:
+                    raise OutputError(f"@{folder}@: cannot create the folder {d} ({exc.strerror}); choose another "
+                                      "output path.") from None
+                made.append(d)
+        yield
+    except BaseException:
+        for d in reversed(made):  # deepest first
+            try:
+                d.rmdir()
+            except OSError:  # not empty (or gone): it holds something now, which is not ours to remove
+                pass
+        raise
 
 
 def check_scene(ctx: click.Context, param: click.Parameter, value: Path | None) -> Path | None:
@@ -625,8 +663,11 @@ def config_notes(report) -> None:
 
 def execute(stage: Callable[[Progress], Report[S]], *, as_json: bool, quiet: bool,
             render: Callable[[Report[S]], object] | None = None) -> int:
-    """Run ``stage(progress) -> Report`` with a progress bar, then print its JSON, or warnings, ``render(report)`` and outputs."""
-    with console.RichProgress(enabled=not (quiet or as_json)) as progress:
+    """Run ``stage(progress) -> Report`` with a progress bar, then print its JSON, or warnings, ``render(report)`` and
+    outputs. The folders of the command's ``-o`` files are made first (:func:`output_folders`)."""
+    ctx = click.get_current_context(silent=True)
+    folders = list(ctx.meta.get(OUTPUT_FOLDERS, [])) if ctx is not None else []
+    with output_folders(folders), console.RichProgress(enabled=not (quiet or as_json)) as progress:
         report = stage(progress)
     config_notes(report)
     if as_json:

@@ -9,14 +9,17 @@ from rich.table import Table
 
 from foliage_tools.cli.helpformat import FoliageCommand
 from foliage_tools.cli import console
-from foliage_tools.cli.common import SCENE, check_sun, common_options, config_notes, config_option, run, setup_logging
+from foliage_tools.cli.common import (
+    OUTPUT_FOLDERS, SCENE, check_output_name, check_sun, common_options, config_notes, config_option, output_folders, run,
+    setup_logging,
+)
 
 METHOD_CHOICES = ["direct", "lb", "spp", "smax", "reference"]
 
 
 @click.command(cls=FoliageCommand, common=("--output", "--method", "--compare", "--error-image", "--sun", "--size"))
 @SCENE
-@click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path),
+@click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path), callback=check_output_name,
               help="Image to write: .png (sRGB) or .exr (linear).")
 @click.option("--method", type=click.Choice(METHOD_CHOICES), default="direct", show_default=True,
               help="Scattered light to draw: that bake's, or none.")
@@ -91,7 +94,8 @@ def preview(scene: Path, out: Path, method: str, compare: str | None, error_imag
             sky_samples=sky_samples,
             lod=lod,
         )
-        with console.RichProgress(enabled=not (quiet or as_json)) as progress:
+        folders = click.get_current_context().meta.get(OUTPUT_FOLDERS, [])
+        with output_folders(folders), console.RichProgress(enabled=not (quiet or as_json)) as progress:
             report = run_preview(scene, out, params, progress=progress)
         config_notes(report)
         if as_json:
