@@ -381,7 +381,7 @@ def volume_problems(stage: Usd.Stage, path: str) -> Iterator[Problem]:
         try:
             read_grid(Path(resolved), name)  # a file OpenVDB reads, holding that grid, of finite voxels
         except InputError as exc:
-            text = str(exc).replace(f"@{resolved}@", f"@{ap.path}@")
+            text = str(exc)  # naming the file as USD resolved it, where OpenVDB read it
             if "has no grid named" in text:
                 from foliage_tools.scene.vdb import grid_names
 

@@ -106,7 +106,7 @@ def open_layers(path: str | os.PathLike) -> list[Sdf.Layer]:
     Missing layers are left out: USD reports them when it composes (``bakeable.composition_problems``). Hold the
     returned layers while the stage is opened: USD then reads each from its registry instead of the file again.
     """
-    root = os.path.abspath(os.fspath(path))
+    root = os.fspath(path)  # as given: USD names the root layer by the identifier it was first opened with
     layers: list[Sdf.Layer] = []
     seen: set[str] = set()
     pending: list[tuple[str, Sdf.Layer | None, str]] = [(root, None, "")]
@@ -116,7 +116,11 @@ def open_layers(path: str | os.PathLike) -> list[Sdf.Layer]:
         if real in seen:
             continue
         seen.add(real)
-        named = f"@{shown(file)}@" if by is None else f"@{shown(by.realPath or by.identifier)}@ names @{shown(asset)}@, which"
+        if by is None:
+            named = f"@{shown(file)}@"
+        else:  # the input as it was given, a layer below it by its path
+            by_name = root if by == layers[0] else (by.realPath or by.identifier)
+            named = f"@{shown(by_name)}@ names @{shown(asset)}@, which"
         problem = name_problem(file) or file_problem(file)
         if problem is not None:
             what = ("USD cannot open it: rename it." if name_problem(file) else

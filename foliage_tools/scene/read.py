@@ -69,16 +69,16 @@ def open_stage(path: str | os.PathLike) -> Usd.Stage:
             if stage is not None:
                 covered.extend(str(e) for e in stage.GetCompositionErrors())
     except Tf.ErrorException as exc:
+        undecodable = usd_diagnostics.not_utf8(p)
+        if undecodable is not None:
+            raise InputError(f"@{p}@ is not UTF-8 text ({undecodable}): USD text layers are UTF-8. Save the file as "
+                             "UTF-8 (or export the asset again).") from None
         syntax = syntax_error(exc)
         if syntax is not None:
             file, line, column, what = syntax
             where = "" if Path(file).resolve() == p.resolve() else usd_diagnostics.relative_paths(f" (in @{file}@)", p)
             raise InputError(f"@{p}@, line {line}, column {column}{where}: not valid USD text: {what}. Fix the file "
                              "at that place (or export the asset again) and run the command again.") from None
-        undecodable = usd_diagnostics.not_utf8(p)
-        if undecodable is not None:
-            raise InputError(f"@{p}@, {undecodable}: USD text layers are UTF-8. Save the file as UTF-8 (or export the "
-                             "asset again).") from None
         raise InputError(f"@{p}@: cannot be opened as USD ({usd_diagnostics.open_failure(exc, p)}). Is it a valid USD "
                          "file?") from None
     if stage is None:
