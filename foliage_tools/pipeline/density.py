@@ -17,6 +17,7 @@ from foliage_tools.params import RESOLUTION_RANGE, DensityParams
 from foliage_tools.pipeline.leafdata import native_instance_warning
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.pipeline.stats import DensityPrototypeStats, DensityStats
+from foliage_tools.scene.bakeable import MIN_VOXEL
 from foliage_tools.scene.model import Prototype, Scene
 from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.vdb import Grid
@@ -54,6 +55,12 @@ def density_grid(proto: Prototype, params: DensityParams) -> GridSpec:
     grid = grid_for_bounds(lo, hi, margin_voxels=params.margin_voxels, **params.grid_options())
     if params.voxel_size is not None:  # the grid --resolution N would give is bounded; so is the one a voxel size gives
         _check_voxel_size(proto, params, grid, float(np.max(np.asarray(hi) - np.asarray(lo))))
+    if grid.voxel_size < MIN_VOXEL:  # OpenVDB could not store the grid (scene.bakeable.MIN_VOXEL)
+        longest = float(np.max(np.asarray(hi) - np.asarray(lo)))
+        raise UsageError(
+            f"prototype <{proto.path}>: its foliage is {longest:.3g} units across, so this grid's voxels would be "
+            f"{grid.voxel_size:.3g}, below the {MIN_VOXEL:g} units OpenVDB stores a grid with. Use a lower --resolution "
+            f"(at most {max(1, int(longest / MIN_VOXEL))}) or a --voxel-size of at least {MIN_VOXEL:g}, or scale the asset up.")
     cells = int(np.prod(grid.shape))
     if cells > MAX_CELLS:
         raise UsageError(

@@ -19,6 +19,7 @@ from foliage_tools.errors import InputError, UsageError
 from foliage_tools.geometry.sun import Sun, choose_sun, to_prototype_space
 from foliage_tools.pipeline.density import require_leaves
 from foliage_tools.pipeline.report import Progress, Report, S, Silent
+from foliage_tools.scene.bakeable import sun_horizon_problem
 from foliage_tools.scene.model import Scene
 from foliage_tools.scene.read import read_scene
 from foliage_tools.scene.write import LayerEdits, check_output_path, input_files, stage_metadata, write_layer
@@ -63,11 +64,11 @@ def begin_bake(command: str, path: Path, out: Path | None, sun_flag, progress: P
 
 def require_sun_above_horizon(path: Path, scene: Scene, sun: Sun) -> None:
     """Every bake lights leaves by a sun above the horizon: one at or below it (a --sun elevation <= 0, or a
-    DistantLight pointing up) is refused before any work, the same way by every command."""
-    if float(np.dot(sun.direction, np.asarray(scene.up, dtype=np.float64))) <= 1e-9:
-        where = "--sun" if sun.source == "--sun" else f"the DistantLight <{sun.source}> of @{path}@" if sun.source != "default" else "the default sun"
-        raise UsageError(f"the sun from {where} is at or below the horizon (elevation {sun.elevation:g} degrees); "
-                         "the bakes need a sun above it: give --sun AZ,EL with EL > 0.")
+    DistantLight pointing up) is refused before any work, the same way by every command and by ``validate``'s sun
+    rule (``scene.bakeable.sun_horizon_problem``)."""
+    problem = sun_horizon_problem(str(path), sun, scene.up)
+    if problem is not None:
+        raise UsageError(problem.message)
 
 
 def sun_in_prototype(scene: Scene, index: int, sun: Sun, warnings: list[str]) -> np.ndarray:

@@ -12,13 +12,15 @@ import re
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Iterator
 
 import numpy as np
-from pxr import Usd, UsdGeom
+from pxr import Sdf, Tf, Usd, UsdGeom, UsdLux, UsdVol
 
+from foliage_tools.errors import InputError
 from foliage_tools.geometry.leaves import DEGENERATE_AREA, triangle_area_normals
-from foliage_tools.scene.usd_diagnostics import relative_paths
+from foliage_tools.scene.usd_diagnostics import open_failure, relative_paths
 
 #: Scales a transform may apply (singular values of its linear part). Below, the
 #: geometry collapses (its inverse, the prototype frame and the sun seen from it do
@@ -34,14 +36,33 @@ class Problem:
     prim: str = ""
 
 
+#: The range of metersPerUnit a bake takes: the normal float32 numbers. Every bake records the unit in its layer as
+#: a ``float`` (``foliage:metersPerUnit``, FoliageLightingAPI) and in its grids' float metadata, so a value above
+#: float32's largest (3.4e38) is written as infinity (1e300 was), and one below its smallest normal (1.2e-38) loses
+#: its precision or becomes 0. Lengths themselves stay in stage units, so no other arithmetic of the bakes uses it.
+MIN_METERS_PER_UNIT = float(np.finfo(np.float32).tiny)
+MAX_METERS_PER_UNIT = float(np.finfo(np.float32).max)
+#: The up axes USD allows (UsdGeom: upAxis is Y or Z); the sun's azimuth and elevation are defined about them.
+UP_AXES = ("Y", "Z")
+
+
 def stage_problems(stage: Usd.Stage, path: str) -> Iterator[Problem]:
-    """Stage metadata a bake relies on: metersPerUnit (DESIGN.md section 3, units)."""
+    """Stage metadata a bake relies on: metersPerUnit (DESIGN.md section 3, units) and upAxis."""
     mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
-    if not (math.isfinite(mpu) and mpu > 0.0):
+    if not (math.isfinite(mpu) and MIN_METERS_PER_UNIT <= mpu <= MAX_METERS_PER_UNIT):
+        why = ("lengths need a finite, positive unit" if not (math.isfinite(mpu) and mpu > 0.0) else
+               f"the bakes record it as a 32-bit float, which holds {MIN_METERS_PER_UNIT:.3g} to {MAX_METERS_PER_UNIT:.3g}")
         yield Problem(
             "stage-units",
-            f"@{path}@: metersPerUnit is {mpu:g}; lengths need a finite, positive unit. Set it in the root layer "
+            f"@{path}@: metersPerUnit is {mpu:g}; {why}. Set it in the root layer "
             "(e.g. metersPerUnit = 1 for metres, 0.01 for centimetres).",
+        )
+    up = str(UsdGeom.GetStageUpAxis(stage))
+    if up not in UP_AXES:
+        yield Problem(
+            "stage-units",
+            f"@{path}@: upAxis is {up!r}; USD allows only \"Y\" or \"Z\", the axes the sun's elevation is measured "
+            "from. Set upAxis = \"Y\" or \"Z\" in the root layer (and rotate the asset if it stands on X).",
         )
 
 
@@ -96,11 +117,20 @@ def _scales(m: np.ndarray) -> np.ndarray | None:
     return s if np.all(np.isfinite(s)) else None
 
 
+def _projective(m: np.ndarray) -> bool:
+    """A 4x4 transform (column-vector convention) that is not affine: its last row is not (0, 0, 0, 1) (a w = 0 or
+    a perspective row, which USD's matrix ops can author and no bake can place geometry with)."""
+    m = np.asarray(m, dtype=np.float64)
+    return not np.all(np.isfinite(m[3])) or bool(np.max(np.abs(m[3] - (0.0, 0.0, 0.0, 1.0))) > 1e-9)
+
+
 def _bad_scale(s: np.ndarray | None) -> bool:
     return s is None or float(s.min()) < MIN_SCALE or float(s.max()) > MAX_SCALE
 
 
-def _describe(s: np.ndarray | None) -> str:
+def _describe(s: np.ndarray | None, projective: bool = False) -> str:
+    if projective:
+        return "a projective transform (its matrix's last column is not (0, 0, 0, 1): not a rotation, scale and move)"
     if s is None:
         return "a transform with NaN or infinite entries"
     if float(s.min()) < MIN_SCALE:
@@ -112,23 +142,26 @@ def transform_problem(prim: Usd.Prim, world: np.ndarray, path: str) -> Problem |
     """A prim whose world transform (4x4) collapses or overflows, naming the ancestor whose own transform does it
     (the prim itself when only their product does)."""
     s = _scales(world)
-    if not _bad_scale(s):
+    projective = _projective(world)
+    if not _bad_scale(s) and not projective:
         return None
     culprit, cs = prim, s
     p = prim
     while p and not p.IsPseudoRoot():
         xf = UsdGeom.Xformable(p)
         if xf:
-            local = _scales(np.array(xf.GetLocalTransformation(Usd.TimeCode.Default()), dtype=np.float64))
-            if _bad_scale(local):
-                culprit, cs = p, local
+            m = np.array(xf.GetLocalTransformation(Usd.TimeCode.Default()), dtype=np.float64).T
+            local = _scales(m)
+            if _bad_scale(local) or _projective(m):
+                culprit, cs, projective = p, local, _projective(m)
                 break
         p = p.GetParent()
     # the message names the prim whose own transform does it, so every mesh below it reports the same line
     return Problem(
         "transforms",
-        f"@{path}@: <{culprit.GetPath()}> has {_describe(cs)}, so a bake cannot place the geometry at or under it. Give "
-        f"<{culprit.GetPath()}> a finite scale between {MIN_SCALE:g} and {MAX_SCALE:g}, or make it invisible to leave it out.",
+        f"@{path}@: <{culprit.GetPath()}> has {_describe(cs, projective)}, so a bake cannot place the geometry at or under "
+        f"it. Give <{culprit.GetPath()}> an affine transform with a finite scale between {MIN_SCALE:g} and {MAX_SCALE:g}, "
+        "or make it invisible to leave it out.",
         str(culprit.GetPath()),
     )
 
@@ -241,11 +274,11 @@ def light_problem(prim: Usd.Prim, world: np.ndarray, path: str) -> Problem | Non
     with np.errstate(all="ignore"):
         axis = m[:3, 2]
         n = float(np.linalg.norm(axis)) if np.all(np.isfinite(axis)) else float("nan")
-    if math.isfinite(n) and MIN_SCALE <= n <= MAX_SCALE:
+    if math.isfinite(n) and MIN_SCALE <= n <= MAX_SCALE and not _projective(m):
         return None
     return Problem(
         "transforms",
-        f"@{path}@: DistantLight <{prim.GetPath()}> has {_describe(_scales(m))}, so it points in no direction and "
+        f"@{path}@: DistantLight <{prim.GetPath()}> has {_describe(_scales(m), _projective(m))}, so it points in no direction and "
         "cannot be the sun. Give it a finite, nonzero scale (only its rotation matters), or remove it and pass --sun AZ,EL.",
         str(prim.GetPath()),
     )
@@ -265,3 +298,186 @@ def leaf_area_problem(prim_path: str, points: np.ndarray, triangles: np.ndarray,
         "it holds no leaf to light. Fix its points, or mark it as wood (primvars:foliage:isLeaf = false) or make it invisible.",
         prim_path,
     )
+
+
+def light_values(prim: Usd.Prim) -> tuple[float, tuple[float, float, float]]:
+    """A light's intensity and colour as the bakes read them (UsdLux inputs:intensity, inputs:color)."""
+    light = UsdLux.LightAPI(prim)
+    intensity = light.GetIntensityAttr().Get()
+    color = light.GetColorAttr().Get()
+    c = (1.0, 1.0, 1.0) if color is None else tuple(float(x) for x in color)
+    return (0.0 if intensity is None else float(intensity)), (c[0], c[1], c[2])
+
+
+def light_value_problem(prim: Usd.Prim, path: str) -> Problem | None:
+    """A DistantLight or DomeLight whose intensity or colour is NaN, infinite or negative: the sun's and sky's light
+    would carry it into every leaf (the sky's NaN failed inside a bake)."""
+    intensity, color = light_values(prim)
+    kind = "DistantLight" if prim.IsA(UsdLux.DistantLight) else "DomeLight"
+    bad = []
+    if not (math.isfinite(intensity) and intensity >= 0.0):
+        bad.append(f"inputs:intensity {intensity:g}")
+    if not all(math.isfinite(c) and c >= 0.0 for c in color):
+        bad.append(f"inputs:color ({', '.join(f'{c:g}' for c in color)})")
+    if not bad:
+        return None
+    return Problem(
+        "lights",
+        f"@{path}@: {kind} <{prim.GetPath()}> has {' and '.join(bad)}; light needs finite values >= 0. Fix the light, "
+        "or remove it (and pass --sun AZ,EL or --sky).",
+        str(prim.GetPath()),
+    )
+
+
+def sun_horizon_problem(path: str, sun, up: np.ndarray) -> Problem | None:
+    """The sun a bake would use (a ``geometry.sun.Sun``, from ``choose_sun``) at or below the horizon: every bake
+    refuses it, and ``validate`` reports a stage's DistantLight so, in the same words."""
+    if float(np.dot(np.asarray(sun.direction, dtype=np.float64), np.asarray(up, dtype=np.float64))) > SUN_MIN_HEIGHT:
+        return None
+    source = str(sun.source)
+    where = ("--sun" if source == "--sun" else "the default sun" if source == "default" else
+             f"the DistantLight {source} of @{path}@")
+    fix = "give --sun AZ,EL with EL > 0" if source in ("--sun", "default") else \
+        "turn the DistantLight above the horizon, or give --sun AZ,EL with EL > 0"
+    return Problem(
+        "sun",
+        f"the sun from {where} is at or below the horizon (elevation {sun.elevation:.4g} degrees); the bakes need a sun "
+        f"above it: {fix}.",
+        source.strip("<>") if source.startswith("<") else "",
+    )
+
+
+#: The sun's height above the horizon (its unit direction's component along the up axis) below which it counts as
+#: at or below it.
+SUN_MIN_HEIGHT = 1e-9
+
+
+def volume_problems(stage: Usd.Stage, path: str) -> Iterator[Problem]:
+    """Every OpenVDBAsset field whose ``.vdb`` a bake (or a renderer) cannot read: no filePath, a file that is
+    missing or is not a regular file (a directory, a FIFO: never opened, so never blocks), one OpenVDB cannot
+    read (garbage, cut short), without the named grid, or a grid of NaN or infinite voxels (``vdb.read_grid``).
+
+    A bake refuses its input for any of these (its output would carry the broken field on, and fail ``validate``)."""
+    from foliage_tools.scene.dependencies import file_problem
+    from foliage_tools.scene.vdb import read_grid
+
+    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()):
+        if not prim.IsA(UsdVol.OpenVDBAsset):
+            continue
+        asset = UsdVol.OpenVDBAsset(prim)
+        ap = asset.GetFilePathAttr().Get()
+        name = asset.GetFieldNameAttr().Get()
+        at = f"@{path}@: <{prim.GetPath()}>"
+        if ap is None or not ap.path:
+            yield Problem("volume-grids", f"{at} has no filePath; author the .vdb it reads, or remove the field.",
+                          str(prim.GetPath()))
+            continue
+        resolved = ap.resolvedPath or ""
+        problem = file_problem(resolved) if resolved else "does not exist"
+        if problem is not None:
+            yield Problem("volume-grids", f"{at}: @{ap.path}@ {problem}. Re-run the bake that wrote it, or point the "
+                          "field at its .vdb file.", str(prim.GetPath()))
+            continue
+        try:
+            read_grid(Path(resolved), name)  # a file OpenVDB reads, holding that grid, of finite voxels
+        except InputError as exc:
+            text = str(exc)  # naming the file as USD resolved it, where OpenVDB read it
+            if "has no grid named" in text:
+                from foliage_tools.scene.vdb import grid_names
+
+                names = grid_names(Path(resolved))
+                text = (f"@{ap.path}@ has no grid {name!r} (it has {', '.join(names) or 'none'}); re-run the bake that "
+                        "wrote it, or correct the field's fieldName.")
+            yield Problem("volume-grids", f"{at}: {text}", str(prim.GetPath()))
+
+
+def local_transform_problem(prim: Usd.Prim, path: str) -> Problem | None:
+    """A prim whose own transform USD cannot compute (an xformOp of a type it does not know, an op whose value does
+    not fit its type): USD raises computing the world transform of everything under it."""
+    xf = UsdGeom.Xformable(prim)
+    if not xf:
+        return None
+    try:
+        xf.GetLocalTransformation(Usd.TimeCode.Default())
+    except Tf.ErrorException as exc:
+        said = open_failure(Tf.ErrorException(*exc.args[:1]), path) if exc.args else "USD gives no reason"
+        return Problem(
+            "transforms",
+            f"@{path}@: <{prim.GetPath()}> has a transform USD cannot compute ({said}), so a bake "
+            f"cannot place the geometry at or under it. Fix <{prim.GetPath()}>'s xformOpOrder and xformOp attributes "
+            "(translate, rotateXYZ, scale, orient, transform, ...), or make it invisible to leave it out.",
+            str(prim.GetPath()),
+        )
+    return None
+
+
+def usd_error_problems(stage: Usd.Stage, path: str) -> Iterator[Problem]:
+    """What made USD raise while a stage was read: every prim whose own transform it cannot compute."""
+    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()):
+        problem = local_transform_problem(prim, path)
+        if problem is not None:
+            yield problem
+
+
+#: The smallest voxel edge OpenVDB stores a grid with: it refuses a linear transform whose determinant (the voxel
+#: edge cubed) is below 3e-15 as "nearly singular", i.e. an edge below 1.44e-5 (measured with pyopenvdb 10), in
+#: the stage's units, which the grids are in. Rounded up to 2e-5.
+MIN_VOXEL = 2e-5
+
+
+def grid_scale_problem(prototype: str, bounds: np.ndarray, path: str) -> Problem | None:
+    """A prototype whose foliage is so small that even the coarsest grid a bake makes (``RESOLUTION_RANGE``'s
+    lowest resolution along its longest edge) has voxels below :data:`MIN_VOXEL` (coordinates scaled by 1e-30, a
+    single leaf of area 5e-31): no bake can store its grids."""
+    from foliage_tools.params import RESOLUTION_RANGE
+
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    longest = float(np.max(hi - lo))
+    coarsest = RESOLUTION_RANGE[0]
+    if longest / coarsest >= MIN_VOXEL:
+        return None
+    return Problem(
+        "geometry-scale",
+        f"@{path}@: the foliage of <{prototype}> is {longest:.3g} units across, so even a {coarsest}-voxel grid has "
+        f"voxels of {longest / coarsest:.3g}, below the {MIN_VOXEL:g} units OpenVDB stores a grid with. Scale the asset "
+        f"up (at least {coarsest * MIN_VOXEL:g} units across) and set metersPerUnit to keep its size in metres.",
+        prototype,
+    )
+
+
+#: The attributes a bake reads, by the schema of the prim holding them: a value of a type USD does not know
+#: (``point9f[] points``) reads back as an UnregisteredValue, which has no length, no numbers.
+READ_ATTRIBUTES = {
+    "Mesh": ("points", "faceVertexCounts", "faceVertexIndices", "primvars:foliage:isLeaf"),
+    "PointInstancer": ("protoIndices", "positions", "orientations", "scales", "ids", "invisibleIds"),
+    "DistantLight": ("inputs:intensity", "inputs:color"),
+    "DomeLight": ("inputs:intensity", "inputs:color"),
+}
+
+
+def attribute_type_problem(prim: Usd.Prim, path: str) -> Problem | None:
+    """An attribute a bake reads on ``prim`` authored with a type USD does not know, so it has no value to read."""
+    for name in READ_ATTRIBUTES.get(str(prim.GetTypeName()), ()):
+        attr = prim.GetAttribute(name)
+        if not attr or not attr.HasAuthoredValue():
+            continue
+        if isinstance(attr.Get(Usd.TimeCode.Default()), Sdf.UnregisteredValue):
+            stack = attr.GetPropertyStack(Usd.TimeCode.Default())
+            authored = str(stack[0].typeName) if stack else "?"
+            definition = prim.GetPrimDefinition().GetAttributeDefinition(name)
+            expected = f" ({prim.GetTypeName()} makes it {definition.GetTypeName()})" if definition else ""
+            return Problem(
+                "attribute-types",
+                f"@{path}@: <{prim.GetPath()}>.{name} is authored as {authored}, a type USD does not know, so it has no "
+                f"value a bake can read{expected}. Author it with its schema's type, or remove it.",
+                str(prim.GetPath()),
+            )
+    return None
+
+
+def mesh_arrays(prim: Usd.Prim) -> tuple:
+    """A mesh's points, faceVertexCounts and faceVertexIndices as authored; None for one not authored or of a type
+    USD does not know (:func:`attribute_type_problem` reports those)."""
+    mesh = UsdGeom.Mesh(prim)
+    values = (mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get(), mesh.GetFaceVertexIndicesAttr().Get())
+    return tuple(None if isinstance(v, Sdf.UnregisteredValue) else v for v in values)

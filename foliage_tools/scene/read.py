@@ -13,12 +13,11 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import cast
 
 import numpy as np
 
 from foliage_tools.errors import InputError
-from foliage_tools.scene import bakeable, usd_diagnostics
+from foliage_tools.scene import bakeable, dependencies, usd_diagnostics
 from foliage_tools.geometry.leaves import face_values_from_triangles, leaf_components, triangulate
 from foliage_tools.scene.model import Instance, Leaves, Light, MeshPart, Prototype, Scene
 from foliage_tools.scene.schemas import LEAF_API, register
@@ -36,18 +35,31 @@ SKIPPED_PURPOSES = (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)
 
 
 def open_stage(path: str | os.PathLike) -> Usd.Stage:
-    """Open a USD file, turning every failure into an :class:`InputError` naming the file."""
+    """Open a USD file, turning every failure into an :class:`InputError` naming the file.
+
+    Every layer the stage is made of is checked to be a regular file that USD can read before the stage is
+    composed (``dependencies.open_layers``), so a FIFO or a device among them never blocks the run.
+    """
     p = Path(path)
-    if not p.exists():
-        raise InputError(f"@{p}@: no such file. Check the path.")
-    if p.is_dir():
-        raise InputError(f"@{p}@ is a directory; give a USD file (.usd, .usda, .usdc, .usdz).")
-    if not p.is_file():  # a FIFO, socket or device: USD would block reading it, or fail without saying why
-        raise InputError(f"@{p}@ is not a regular file (a FIFO, socket or device?); give a USD file (.usd, .usda, .usdc, .usdz).")
+    name = dependencies.shown(p)
+    bad_name = dependencies.name_problem(p)
+    if bad_name is not None:
+        raise InputError(f"@{name}@: {bad_name}, which USD cannot take in a file name. Rename the file.")
+    problem = dependencies.file_problem(p)
+    if problem == "does not exist":
+        raise InputError(f"@{name}@: no such file. Check the path.")
+    if problem == "is a directory, not a file":
+        raise InputError(f"@{name}@ is a directory; give a USD file (.usd, .usda, .usdc, .usdz).")
+    if problem is not None:  # a FIFO, socket or device (USD would block reading it), a symlink loop, no permission
+        raise InputError(f"@{name}@ {problem}; give a USD file (.usd, .usda, .usdc, .usdz).")
     if p.stat().st_size == 0:
         raise InputError(f"@{p}@ is empty (0 bytes): an export or copy that did not finish? Export the asset again.")
     if not Sdf.FileFormat.FindByExtension(p.suffix.lstrip(".") or "none"):
         raise InputError(f"@{p}@: not a USD file (extension {p.suffix or 'none'!r}); give a .usd, .usda, .usdc or .usdz file.")
+    try:
+        held = dependencies.open_layers(p)  # noqa: F841  (held while the stage opens: USD reuses them)
+    except InputError as exc:
+        raise InputError(usd_diagnostics.relative_paths(str(exc), p)) from None
     # USD's own warnings (an unloadable sublayer or reference, with absolute paths) are logged, not printed: the
     # composition errors they repeat are reported in our words (bakeable.composition_problems, validate)
     covered: list[str] = []
@@ -57,6 +69,10 @@ def open_stage(path: str | os.PathLike) -> Usd.Stage:
             if stage is not None:
                 covered.extend(str(e) for e in stage.GetCompositionErrors())
     except Tf.ErrorException as exc:
+        undecodable = usd_diagnostics.not_utf8(p)
+        if undecodable is not None:
+            raise InputError(f"@{p}@ is not UTF-8 text ({undecodable}): USD text layers are UTF-8. Save the file as "
+                             "UTF-8 (or export the asset again).") from None
         syntax = syntax_error(exc)
         if syntax is not None:
             file, line, column, what = syntax
@@ -78,7 +94,7 @@ def syntax_error(exc: Tf.ErrorException) -> tuple[str, int, int, str] | None:
     """(file, line, column, message) of the .usda syntax error among the errors of a failed open, else None: where
     the file needs fixing (:func:`usd_diagnostics.place_unclosed`), 1-based as editors count."""
     for error in exc.args:
-        found = _SYNTAX_AT.match(str(getattr(error, "commentary", "")).strip())
+        found = _SYNTAX_AT.match(usd_diagnostics.commentary(error))
         if found:
             what = " ".join(found["what"].split()).rstrip(".")
             line, column, what = usd_diagnostics.place_unclosed(found["file"], int(found["line"]), int(found["column"]), what)
@@ -113,13 +129,19 @@ def classify_leaf(prim: Usd.Prim) -> tuple[bool, str]:
     return False, "default"
 
 
-def _is_skipped(prim: Usd.Prim) -> bool:
+def _is_skipped(prim: Usd.Prim, *, own_only: bool = False) -> bool:
+    """An invisible prim or one of guide or proxy purpose (bakes leave it and its subtree out).
+
+    ``own_only``: look at the prim's own visibility and purpose only, for a traversal that prunes every skipped
+    prim's children (its ancestors were all looked at, and kept): computing them from the ancestors for every prim
+    of such a traversal is quadratic in its depth (3,000 nested Xforms took minutes).
+    """
     img = UsdGeom.Imageable(prim)
     if not img:
         return False
-    if img.ComputeVisibility() == UsdGeom.Tokens.invisible:
-        return True
-    return img.ComputePurpose() in SKIPPED_PURPOSES
+    if not own_only:
+        return img.ComputeVisibility() == UsdGeom.Tokens.invisible or img.ComputePurpose() in SKIPPED_PURPOSES
+    return img.GetVisibilityAttr().Get() == UsdGeom.Tokens.invisible or img.GetPurposeAttr().Get() in SKIPPED_PURPOSES
 
 
 @dataclass
@@ -137,10 +159,7 @@ class _Reader:
 
     # -- meshes -----------------------------------------------------------
     def read_mesh(self, prim: Usd.Prim, to_proto: np.ndarray, *, editable: bool) -> MeshPart | None:
-        mesh = UsdGeom.Mesh(prim)
-        pts = mesh.GetPointsAttr().Get()
-        counts = mesh.GetFaceVertexCountsAttr().Get()
-        idx = mesh.GetFaceVertexIndicesAttr().Get()
+        pts, counts, idx = bakeable.mesh_arrays(prim)
         lacks = bakeable.mesh_lacks(pts, counts, idx)
         if lacks is not None:
             self.empty_meshes.append(f"mesh <{prim.GetPath()}> has {lacks}")
@@ -179,7 +198,7 @@ class _Reader:
             mesh_prims = []
             it = iter(Usd.PrimRange(root))
             for prim in it:
-                if _is_skipped(prim):
+                if _is_skipped(prim, own_only=prim != root):
                     it.PruneChildren()
                     continue
                 if prim.IsInstance() or prim.IsA(UsdGeom.PointInstancer):
@@ -194,6 +213,7 @@ class _Reader:
                     it.PruneChildren()
                     continue
                 if prim.IsA(UsdGeom.Mesh):
+                    _refuse([bakeable.attribute_type_problem(prim, self.path)])
                     mesh_prims.append(prim)
         inv_root = None
         if kind == "prim":
@@ -213,6 +233,10 @@ class _Reader:
             part = self.read_mesh(prim, to_proto, editable=editable)
             if part is not None:
                 parts.append(part)
+        leaf_points = [m.points[np.unique(m.triangles)] for m in parts if m.is_leaf and len(m.triangles)]
+        if leaf_points:  # before its leaves are found: welding points of a grid no bake can store is meaningless
+            pts = np.concatenate(leaf_points)
+            _refuse([bakeable.grid_scale_problem(path, np.stack([pts.min(axis=0), pts.max(axis=0)]), self.path)])
         leaves, degenerate = _leaves(parts)
         name = Path(path).name or "root"
         self.prototypes.append(
@@ -236,9 +260,10 @@ class _Reader:
         it = iter(Usd.PrimRange(self.stage.GetPseudoRoot()))
         next(it)  # the pseudo-root
         for prim in it:
-            if _is_skipped(prim):
+            if _is_skipped(prim, own_only=True):  # (the traversal prunes skipped prims' children)
                 it.PruneChildren()
                 continue
+            _refuse([bakeable.attribute_type_problem(prim, self.path)])
             if prim.IsA(UsdGeom.PointInstancer):
                 self.point_instancer(UsdGeom.PointInstancer(prim))
                 it.PruneChildren()
@@ -325,22 +350,40 @@ class _Reader:
             self.instances.append(Instance(prototype=proto_ids[int(proto_indices[i])], path=f"{base}[{i}]", transform=mats[i]))
 
     def light(self, prim: Usd.Prim) -> None:
-        m = _matrix(self.xf.GetLocalToWorldTransform(prim))
-        if prim.IsA(UsdLux.DistantLight):
-            _refuse([bakeable.light_problem(prim, m, self.path)])
-        light = UsdLux.LightAPI(prim)
-        intensity = float(light.GetIntensityAttr().Get() or 0.0)
-        # inputs:color is a color3f
-        color = cast("tuple[float, float, float]", tuple(float(c) for c in (light.GetColorAttr().Get() or (1.0, 1.0, 1.0))))
-        if prim.IsA(UsdLux.DistantLight):
-            d = m[:3, 2]  # the light travels along its -Z axis, so +Z points toward the sun
-            kind = "distant"
-        else:
-            up = UsdGeom.GetStageUpAxis(self.stage)
-            d = np.array([0.0, 1.0, 0.0]) if up == "Y" else np.array([0.0, 0.0, 1.0])
-            kind = "dome"
-        n = np.linalg.norm(d)
-        self.lights.append(Light(path=str(prim.GetPath()), kind=kind, direction=d / n if n else d, intensity=intensity, color=color))
+        light = read_light(prim, self.xf.GetLocalToWorldTransform(prim), self.path)
+        if light is not None:
+            self.lights.append(light)
+
+
+def read_light(prim: Usd.Prim, world: Gf.Matrix4d, path: str) -> Light | None:
+    """A DistantLight (the sun) or DomeLight (the sky) as the bakes use it, from its world transform; None for
+    other prims. :class:`InputError` for a sun that points nowhere and a light of NaN, infinite or negative
+    intensity or colour (``bakeable``: validate's transforms and lights rules say the same)."""
+    if not (prim.IsA(UsdLux.DistantLight) or prim.IsA(UsdLux.DomeLight)):
+        return None
+    m = _matrix(world)
+    if prim.IsA(UsdLux.DistantLight):
+        _refuse([bakeable.light_problem(prim, m, path)])
+    _refuse([bakeable.light_value_problem(prim, path)])
+    intensity, color = bakeable.light_values(prim)
+    if prim.IsA(UsdLux.DistantLight):
+        d = m[:3, 2]  # the light travels along its -Z axis, so +Z points toward the sun
+        kind = "distant"
+    else:
+        up = UsdGeom.GetStageUpAxis(prim.GetStage())
+        d = np.array([0.0, 1.0, 0.0]) if up == "Y" else np.array([0.0, 0.0, 1.0])
+        kind = "dome"
+    n = np.linalg.norm(d)
+    return Light(path=str(prim.GetPath()), kind=kind, direction=d / n if n else d, intensity=intensity, color=color)
+
+
+class Refused(InputError):
+    """A reader's refusal of one of ``bakeable``'s problems: :class:`InputError` (exit 2) with the problem's rule."""
+
+    def __init__(self, message: str, rule: str, prim: str = "") -> None:
+        super().__init__(message)
+        self.rule = rule
+        self.prim = prim
 
 
 def _refuse(problems) -> None:
@@ -348,7 +391,7 @@ def _refuse(problems) -> None:
     found = [p for p in problems if p is not None]
     if found:
         more = f" ({len(found) - 1} more such problem(s): `foliage validate` lists them.)" if len(found) > 1 else ""
-        raise InputError(found[0].message + more)
+        raise Refused(found[0].message + more, found[0].rule, found[0].prim)
 
 
 def _leaves(parts: list[MeshPart]) -> tuple[Leaves, int]:
@@ -394,13 +437,26 @@ def read_scene(path: str | os.PathLike) -> tuple[Scene, list[str]]:
         positive, NaN points, broken topology, a transform that collapses or overflows, a leaf mesh
         of zero area (``scene.bakeable``: the checks ``foliage validate`` reports as errors).
     """
-    stage = open_stage(path)
-    _refuse(list(bakeable.composition_problems(stage, str(path))))
-    if not any(True for _ in stage.GetPseudoRoot().GetChildren()):
-        raise InputError(f"@{path}@: the stage is empty (no prims). Is this the right file?")
-    _refuse(list(bakeable.stage_problems(stage, str(path))))
-    reader = _Reader(stage=stage, path=str(path))
-    scene = reader.run()
+    return read_stage(open_stage(path), str(path))
+
+
+def read_stage(stage: Usd.Stage, path: str) -> tuple[Scene, list[str]]:
+    """:func:`read_scene` of a stage already open (``validate`` reads the stage it checks with it, so whatever a
+    bake refuses, validate reports)."""
+    try:
+        _refuse(list(bakeable.composition_problems(stage, path)))
+        if not any(True for _ in stage.GetPseudoRoot().GetChildren()):
+            raise InputError(f"@{path}@: the stage is empty (no prims). Is this the right file?")
+        _refuse(list(bakeable.stage_problems(stage, path)))
+        _refuse(list(bakeable.volume_problems(stage, path)))
+        reader = _Reader(stage=stage, path=path)
+        scene = reader.run()
+    except Tf.ErrorException as exc:
+        # USD could not compute something it was asked for (an xformOp it does not know): the prim whose own
+        # values do it, in validate's words, else what USD said
+        _refuse(bakeable.usd_error_problems(stage, path))
+        raise InputError(f"@{path}@: USD cannot read the stage ({usd_diagnostics.open_failure(exc, path)}). Run "
+                         "`foliage validate` on it, and fix or re-export the asset.") from None
     for proto in scene.prototypes:
         if proto.degenerate_triangles:
             reader.warnings.append(

@@ -38,9 +38,38 @@ def captured(covered: list[str] | None = None) -> Iterator[None]:
         diagnostics = delegate.TakeUncoalescedDiagnostics()
         del delegate  # unregisters it: USD prints again outside the block
         for d in diagnostics:
-            text = str(d.commentary).strip()
+            text = commentary(d)
             quiet = covered is None or any(c in text for c in covered) or "STATUS" in str(d.diagnosticCodeString)
             log.log(logging.DEBUG if quiet else logging.WARNING, "USD: %s", text)
+
+
+def commentary(diagnostic) -> str:
+    """What a USD diagnostic (an error of a ``Tf.ErrorException``, a captured warning) says, stripped; bytes that are
+    not UTF-8 in it (quoted from a file that is not) as ``\\xNN`` instead of failing to decode."""
+    try:
+        return str(getattr(diagnostic, "commentary", "")).strip()
+    except UnicodeDecodeError as exc:
+        raw = exc.object if isinstance(exc.object, bytes) else b""
+        return raw.decode("utf-8", errors="backslashreplace").strip() or "text that is not UTF-8"
+
+
+def not_utf8(path: str | os.PathLike) -> str | None:
+    """Where a text layer first holds bytes that are not UTF-8 (``line L, column C: byte 0xff is not UTF-8``), or
+    None when it is UTF-8 (or binary: a crate file, a zip)."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read(64 << 20)
+    except OSError:
+        return None
+    if not data.startswith(b"#usda"):
+        return None
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
+        return f"line {line}, column {column}: byte 0x{data[exc.start]:02x} is not UTF-8"
+    return None
 
 
 #: an absolute path as USD quotes it in a message: @/x/y.usda@ or '/x/y.usda'
@@ -78,7 +107,7 @@ def open_failure(exc: Tf.ErrorException, path: str | os.PathLike) -> str:
     """Why USD could not open ``path``, from the errors of ``exc``: what it says about the file (its first
     errors; the last, "Failed to open layer", only repeats that it failed), without the C++ function, source file
     and line of each diagnostic, and naming the file "the file"."""
-    said = [str(getattr(e, "commentary", "")).strip() for e in exc.args]
+    said = [commentary(e) for e in exc.args]
     said = [s for s in said if s] or [str(exc).strip() or "unknown error"]
     causes = [s for s in said if not s.startswith("Failed to open layer")] or said
     plain = without_cxx_names("; ".join(causes))

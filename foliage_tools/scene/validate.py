@@ -8,6 +8,7 @@ USD's notation: prim paths in ``<...>``, asset paths in ``@...@``.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from functools import partial
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -17,13 +18,13 @@ from foliage_tools.errors import InputError
 from foliage_tools.geometry.leaves import DEGENERATE_AREA, triangle_area_normals, triangulate
 from foliage_tools.scene import bakeable, usd_diagnostics
 from foliage_tools.scene.integrity import check_layers, pending_for, record_of
-from foliage_tools.scene.read import _is_skipped, classify_leaf, open_stage
+from foliage_tools.geometry.sun import choose_sun, direction_from_angles
+from foliage_tools.scene.read import _is_skipped, classify_leaf, open_stage, read_light, read_stage
 from foliage_tools.scene.schemas import register
-from foliage_tools.scene.vdb import grid_names, read_grid
 
 register()
 
-from pxr import Usd, UsdGeom, UsdLux, UsdValidation, UsdVol  # noqa: E402
+from pxr import Tf, Usd, UsdGeom, UsdLux, UsdValidation  # noqa: E402
 
 ERROR = "error"
 WARNING = "warning"
@@ -77,9 +78,9 @@ def _meshes(stage: Usd.Stage) -> Iterator[Usd.Prim]:
 
 
 def _mesh_arrays(prim: Usd.Prim) -> tuple:
-    """A mesh's points, faceVertexCounts and faceVertexIndices as authored (None when not)."""
-    mesh = UsdGeom.Mesh(prim)
-    return mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get(), mesh.GetFaceVertexIndicesAttr().Get()
+    """A mesh's points, faceVertexCounts and faceVertexIndices as authored (None when not, or of a type USD does not
+    know: the attribute-types rule's)."""
+    return bakeable.mesh_arrays(prim)
 
 
 def _is_empty(prim: Usd.Prim) -> bool:
@@ -137,7 +138,7 @@ def _finite(stage: Usd.Stage, path: str) -> Iterator[Finding]:
             yield Finding(ERROR, "finite-geometry", f"@{path}@: mesh {broken}", str(prim.GetPath()))  # as the reader
 
 
-@rule("stage-units", "metersPerUnit is finite and positive (bakes honour the stage's units).")
+@rule("stage-units", "metersPerUnit is a finite positive float32 number (bakes record the stage's units) and upAxis is Y or Z.")
 def _stage_units(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     for problem in bakeable.stage_problems(stage, path):
         yield Finding(ERROR, problem.rule, problem.message, problem.prim)
@@ -147,30 +148,73 @@ def _bakeable_prims(stage: Usd.Stage) -> Iterator[Usd.Prim]:
     """Prims a bake reads (as scene.read does: invisible, guide and proxy subtrees left out), through instances."""
     it = iter(Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()))
     for prim in it:
-        if _is_skipped(prim):
+        if _is_skipped(prim, own_only=True):  # (pruned below a skipped prim)
             it.PruneChildren()
             continue
         yield prim
 
 
-@rule("transforms", "Meshes, point-instanced instances and distant lights have world transforms that neither collapse (scale 0) nor overflow.")
+@rule("transforms", "Meshes, point-instanced instances and distant lights have affine world transforms USD can compute that neither collapse (scale 0) nor overflow.")
 def _transforms(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     xf = UsdGeom.XformCache()
     seen = set()
     for prim in _bakeable_prims(stage):
-        if prim.IsA(UsdGeom.Mesh):
-            problem = bakeable.transform_problem(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
-        elif prim.IsA(UsdLux.DistantLight):
-            problem = bakeable.light_problem(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
-        elif prim.IsA(UsdGeom.PointInstancer):
-            # one whose lists do not line up is the instancers rule's (USD warns computing its transforms)
-            problem = None if bakeable.instancer_index_problem(prim, path) else bakeable.instancer_transform_problem(
-                prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
-        else:
-            continue
+        problem = None
+        try:
+            if prim.IsA(UsdGeom.Mesh):
+                problem = bakeable.transform_problem(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
+            elif prim.IsA(UsdLux.DistantLight):
+                problem = bakeable.light_problem(prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
+            elif prim.IsA(UsdGeom.PointInstancer):
+                # one whose lists do not line up is the instancers rule's (USD warns computing its transforms)
+                problem = None if bakeable.instancer_index_problem(prim, path) else bakeable.instancer_transform_problem(
+                    prim, np.array(xf.GetLocalToWorldTransform(prim)).T, path)
+        except Tf.ErrorException:  # an op USD cannot compute, here or above: the prim whose own op it is
+            xf = UsdGeom.XformCache()
+            p = prim
+            while p and not p.IsPseudoRoot() and problem is None:
+                problem = bakeable.local_transform_problem(p, path)
+                p = p.GetParent()
         if problem is not None and problem.message not in seen:  # once per culprit, not per mesh under it
             seen.add(problem.message)
             yield Finding(ERROR, problem.rule, problem.message, problem.prim)
+
+
+@rule("attribute-types", "Attributes the bakes read (mesh points and faces, instancer lists, light values) have types USD knows.")
+def _attribute_types(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in _bakeable_prims(stage):
+        problem = bakeable.attribute_type_problem(prim, path)
+        if problem is not None:
+            yield Finding(ERROR, problem.rule, problem.message, problem.prim)
+
+
+@rule("lights", "DistantLights and DomeLights have finite, non-negative intensity and colour.")
+def _lights(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    for prim in _bakeable_prims(stage):
+        if (prim.IsA(UsdLux.DistantLight) or prim.IsA(UsdLux.DomeLight)) and not bakeable.attribute_type_problem(prim, path):
+            problem = bakeable.light_value_problem(prim, path)
+            if problem is not None:
+                yield Finding(ERROR, problem.rule, problem.message, problem.prim)
+
+
+@rule("sun", "The sun the bakes take from the stage (its first DistantLight) is above the horizon.")
+def _sun(stage: Usd.Stage, path: str) -> Iterator[Finding]:
+    if any(True for _ in bakeable.stage_problems(stage, path)):
+        return  # an up axis the bakes do not take has no horizon: the stage-units rule's
+    xf = UsdGeom.XformCache()
+    for prim in _bakeable_prims(stage):
+        if not prim.IsA(UsdLux.DistantLight):
+            continue
+        try:
+            light = read_light(prim, xf.GetLocalToWorldTransform(prim), path)
+        except (InputError, Tf.ErrorException):
+            return  # a sun pointing nowhere or of bad values: the transforms and lights rules'
+        up = str(UsdGeom.GetStageUpAxis(stage))
+        sun = choose_sun([light], up, None, [])
+        problem = bakeable.sun_horizon_problem(path, sun, direction_from_angles(0.0, 90.0, up))
+        if problem is not None:
+            yield Finding(ERROR, problem.rule, problem.message, problem.prim)
+        return  # the first DistantLight is the sun (geometry.sun.choose_sun)
 
 
 @rule("instancers", "Every point instancer's prototypes exist and each of its protoIndices names one of them.")
@@ -196,7 +240,7 @@ def _nested_instancing(stage: Usd.Stage, path: str) -> Iterator[Finding]:
             # instance below the root are a second level
             it = iter(Usd.PrimRange(root, Usd.TraverseInstanceProxies()))
             for inner in it:
-                if _is_skipped(inner):
+                if _is_skipped(inner, own_only=inner != root):
                     it.PruneChildren()
                 elif inner.IsA(UsdGeom.PointInstancer) or (inner.IsInstance() and inner != root):
                     if inner == root:
@@ -228,8 +272,7 @@ def _leaf_area(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     for prim in _bakeable_prims(stage):
         if not prim.IsA(UsdGeom.Mesh) or not classify_leaf(prim)[0]:
             continue
-        mesh = UsdGeom.Mesh(prim)
-        pts, counts, idx = (a.Get() for a in (mesh.GetPointsAttr(), mesh.GetFaceVertexCountsAttr(), mesh.GetFaceVertexIndicesAttr()))
+        pts, counts, idx = _mesh_arrays(prim)
         if pts is None or counts is None or idx is None or len(pts) == 0:
             continue
         p = np.asarray(pts, dtype=np.float64)
@@ -244,10 +287,7 @@ def _leaf_area(stage: Usd.Stage, path: str) -> Iterator[Finding]:
 @rule("degenerate-geometry", "No zero-area triangles (they carry no leaf area and break normals).")
 def _degenerate(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     for prim in _meshes(stage):
-        mesh = UsdGeom.Mesh(prim)
-        pts = mesh.GetPointsAttr().Get()
-        counts = mesh.GetFaceVertexCountsAttr().Get()
-        idx = mesh.GetFaceVertexIndicesAttr().Get()
+        pts, counts, idx = _mesh_arrays(prim)
         if pts is None or counts is None or idx is None or len(pts) == 0:
             continue
         p = np.asarray(pts, dtype=np.float64)
@@ -263,17 +303,15 @@ def _degenerate(stage: Usd.Stage, path: str) -> Iterator[Finding]:
             yield Finding(WARNING, "degenerate-geometry", f"@{path}@: <{prim.GetPath()}> has {n} degenerate (zero-area) triangle(s); bakes ignore them.", str(prim.GetPath()))
 
 
-def _expected_length(mesh: UsdGeom.Mesh, interpolation: str) -> int | None:
+def _expected_length(prim: Usd.Prim, interpolation: str) -> int | None:
+    pts, counts, idx = _mesh_arrays(prim)
     if interpolation == UsdGeom.Tokens.constant:
         return 1
     if interpolation == UsdGeom.Tokens.uniform:
-        counts = mesh.GetFaceVertexCountsAttr().Get()
         return len(counts) if counts is not None else None
     if interpolation in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
-        pts = mesh.GetPointsAttr().Get()
         return len(pts) if pts is not None else None
     if interpolation == UsdGeom.Tokens.faceVarying:
-        idx = mesh.GetFaceVertexIndicesAttr().Get()
         return len(idx) if idx is not None else None
     return None
 
@@ -283,12 +321,11 @@ def _primvar_lengths(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     for prim in _meshes(stage):
         if _is_empty(prim):
             continue  # the readers skip it (the empty-meshes rule's warning), and its primvars with it
-        mesh = UsdGeom.Mesh(prim)
         for pv in UsdGeom.PrimvarsAPI(prim).GetPrimvarsWithAuthoredValues():
             value = pv.Get()
             if value is None or not hasattr(value, "__len__") or isinstance(value, str):
                 continue
-            expected = _expected_length(mesh, pv.GetInterpolation())
+            expected = _expected_length(prim, pv.GetInterpolation())
             if expected is None:
                 continue
             es = max(pv.GetElementSize(), 1)
@@ -309,35 +346,10 @@ def _primvar_lengths(stage: Usd.Stage, path: str) -> Iterator[Finding]:
                 )
 
 
-@rule("volume-grids", "Referenced .vdb files exist and hold the named grids with finite values.")
+@rule("volume-grids", "Referenced .vdb files are regular files OpenVDB reads, holding the named grids with finite values.")
 def _volume_grids(stage: Usd.Stage, path: str) -> Iterator[Finding]:
-    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()):
-        if not prim.IsA(UsdVol.OpenVDBAsset):
-            continue
-        asset = UsdVol.OpenVDBAsset(prim)
-        file_attr = asset.GetFilePathAttr()
-        ap = file_attr.Get()
-        name = asset.GetFieldNameAttr().Get()
-        if ap is None or not ap.path:
-            yield Finding(ERROR, "volume-grids", f"@{path}@: <{prim.GetPath()}> has no filePath; author the .vdb it reads, or remove the field.", str(prim.GetPath()))
-            continue
-        resolved = ap.resolvedPath or ""
-        if not resolved or not Path(resolved).is_file():
-            yield Finding(ERROR, "volume-grids", f"@{path}@: <{prim.GetPath()}>: @{ap.path}@ does not exist. Re-run the bake that wrote it.", str(prim.GetPath()))
-            continue
-        try:
-            names = grid_names(Path(resolved))
-        except InputError as exc:
-            yield Finding(ERROR, "volume-grids", f"@{path}@: <{prim.GetPath()}>: {exc}", str(prim.GetPath()))
-            continue
-        if name not in names:
-            yield Finding(ERROR, "volume-grids", f"@{path}@: <{prim.GetPath()}>: @{ap.path}@ has no grid {name!r} (it has {', '.join(names) or 'none'}); re-run the bake "
-                                  "that wrote it, or correct the field's fieldName.", str(prim.GetPath()))
-            continue
-        try:
-            read_grid(Path(resolved), name)  # refuses NaN or infinite voxels, naming the file and grid
-        except InputError as exc:
-            yield Finding(ERROR, "volume-grids", f"@{path}@: <{prim.GetPath()}>: {exc}", str(prim.GetPath()))
+    for problem in bakeable.volume_problems(stage, path):  # what every bake refuses, in its words
+        yield Finding(ERROR, problem.rule, problem.message, problem.prim)
 
 
 @rule("bake-files-match", "Each bake layer's grid files and upstream layers are the ones it was written with (content hashes in its customLayerData).")
@@ -411,12 +423,37 @@ def _usd_findings(stage: Usd.Stage, path: str) -> Iterator[Finding]:
 
 
 def validate(path: str | Path) -> list[Finding]:
-    """All findings for the stage at ``path`` (raises :class:`InputError` if it cannot be opened)."""
+    """All findings for the stage at ``path`` (raises :class:`InputError` if it cannot be opened).
+
+    When the rules find no error, the stage is read as every bake reads it (``scene.read.read_stage``): its
+    refusal is a finding too, so what a bake refuses, validate fails, in the bake's words.
+    """
     stage = open_stage(path)
-    findings = list(_usd_findings(stage, str(path)))
-    for _, _, fn in RULES:
-        findings.extend(fn(stage, str(path)))
+    findings = _guarded("usd", lambda: list(_usd_findings(stage, str(path))), stage, str(path))
+    for name, _, fn in RULES:
+        findings.extend(_guarded(name, partial(_run_rule, fn, stage, str(path)), stage, str(path)))
+    if not any(f.severity == ERROR for f in findings):
+        try:
+            with usd_diagnostics.captured():  # what USD warns reading is the rules' to say
+                read_stage(stage, str(path))
+        except InputError as exc:
+            findings.append(Finding(ERROR, getattr(exc, "rule", "bakeable"), str(exc), getattr(exc, "prim", "")))
     return findings
+
+
+def _run_rule(fn: Rule, stage: Usd.Stage, path: str) -> list[Finding]:
+    return list(fn(stage, path))
+
+
+def _guarded(name: str, run: Callable[[], list[Finding]], stage: Usd.Stage, path: str) -> list[Finding]:
+    """A rule's findings; when USD raises computing them (a value it cannot compute), the prims whose own values do
+    it (``bakeable.usd_error_problems``), else what USD said, as findings of that rule."""
+    try:
+        return run()
+    except Tf.ErrorException as exc:
+        found = [Finding(ERROR, p.rule, p.message, p.prim) for p in bakeable.usd_error_problems(stage, path)]
+        return found or [Finding(ERROR, name, f"@{path}@: USD cannot compute this rule's check "
+                                 f"({usd_diagnostics.open_failure(exc, path)}); fix or re-export the asset.")]
 
 
 def rule_docs() -> list[tuple[str, str]]:

@@ -8,8 +8,10 @@ background (0).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 from pathlib import Path
 from typing import cast
 
@@ -134,16 +136,50 @@ def _read_raw(path: Path, name: str):
     return g
 
 
+def _why(exc: BaseException) -> str:
+    """What OpenVDB said about a file it could not read, in at most a line: a cut or garbled file can make it quote
+    hundreds of megabytes of what it took for a name."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+def unreadable(path: Path) -> str | None:
+    """Why ``path`` cannot be read as an OpenVDB file before anything opens it (missing, a directory, a FIFO or a
+    device, which would block the read: ``dependencies.file_problem``), as ``@path@ <why>.``; None for a regular file."""
+    from foliage_tools.scene.dependencies import file_problem
+
+    problem = file_problem(path)
+    return None if problem is None else f"@{path}@ {problem}; an OpenVDB file is a regular file."
+
+
+def _descriptors(path: Path) -> list[tuple[str, str, str]]:
+    """(name, value type, class) of every grid of a ``.vdb``, read once per file version; :class:`InputError` naming
+    ``path`` as given if it is not a regular file OpenVDB can read."""
+    path = Path(path)
+    problem = unreadable(path)
+    if problem is not None:
+        raise InputError(problem)
+    st = path.stat()
+    try:
+        return _read_descriptors(str(path.resolve()), st.st_size, st.st_mtime_ns, st.st_ino)
+    except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
+        raise InputError(f"@{path}@: not a readable OpenVDB file ({_why(exc)}).") from None
+
+
+@lru_cache(maxsize=64)
+def _read_descriptors(path: str, _size: int, _mtime: int, _ino: int) -> list[tuple[str, str, str]]:
+    return [(g.name, str(g.valueTypeName), str(g.gridClass)) for g in _openvdb().readAllGridMetadata(path)]
+
+
 def grid_classes(path: Path) -> dict[str, str]:
     """{grid name: OpenVDB grid class name} of a ``.vdb`` (``fog volume``, ``unknown``, ...)."""
-    try:
-        return {g.name: str(g.gridClass) for g in _openvdb().readAllGridMetadata(str(path))}
-    except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
-        raise InputError(f"@{path}@: not a readable OpenVDB file ({exc}).") from None
+    return {name: klass for name, _, klass in _descriptors(path)}
 
 
 def file_metadata(path: Path) -> dict:
     """The file-level metadata of a ``.vdb`` (``write_vdb``'s ``metadata``); empty if it cannot be read."""
+    if unreadable(Path(path)) is not None:
+        return {}  # never opened: a FIFO would block the read
     try:
         return dict(_openvdb().readMetadata(str(path)))
     except Exception:  # pyopenvdb raises assorted types for corrupt files; the grid readers report those
@@ -151,14 +187,16 @@ def file_metadata(path: Path) -> dict:
 
 
 def grid_names(path: Path) -> list[str]:
-    """Names of the grids in a ``.vdb`` file; :class:`InputError` if it is missing or unreadable."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"@{path}@: no such OpenVDB file.")
-    try:
-        return [g.name for g in _openvdb().readAllGridMetadata(str(path))]
-    except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
-        raise InputError(f"@{path}@: not a readable OpenVDB file ({exc}).") from None
+    """Names of the grids in a ``.vdb`` file; :class:`InputError` if it is missing, not a regular file or unreadable."""
+    return [name for name, _, _ in _descriptors(Path(path))]
+
+
+#: The most voxels :func:`read_grid` makes dense (2 GiB of float32): more than any bake writes (the density's limit),
+#: so a grid spanning more is a garbled file, not one to allocate for.
+MAX_DENSE_VOXELS = 1024**3 // 2
+
+#: The value types of the grids the bakes write and read (FloatGrid, Vec3SGrid).
+READ_TYPES = ("float", "vec3s")
 
 
 def place_on_lattice(grid: Grid, shape, origin) -> Grid:
@@ -187,18 +225,27 @@ def on_lattice(grid: Grid) -> Grid:
 
 
 def read_grid(path: Path, name: str) -> Grid:
-    """Read one grid as a dense array over its active bounding box; :class:`InputError` if it holds NaN or Inf."""
+    """Read one grid as a dense array over its active bounding box; :class:`InputError` if the file is not a regular
+    file OpenVDB can read, has no such grid, holds it as another type than float or vec3s, or it holds NaN or Inf."""
     path = Path(path)
-    if name not in grid_names(path):
+    types = {n: t for n, t, _ in _descriptors(path)}
+    if name not in types:
         raise InputError(f"@{path}@ has no grid named {name!r}.")
+    if types[name] not in READ_TYPES:
+        raise InputError(f"@{path}@: grid {name!r} holds {types[name]} values; foliage grids hold float or vec3s. Re-run "
+                         "the bake that wrote it, or point the field at the grid it means.")
     try:
         g = _openvdb().read(str(path), name)
     except Exception as exc:
-        raise InputError(f"@{path}@: grid {name!r} cannot be read ({exc}).") from None
+        raise InputError(f"@{path}@: grid {name!r} cannot be read ({_why(exc)}).") from None
     lo, hi = g.evalActiveVoxelBoundingBox()
     if g.activeVoxelCount() == 0:
         lo, hi = (0, 0, 0), (0, 0, 0)
     shape = tuple(int(b - a + 1) for a, b in zip(lo, hi))
+    if math.prod(shape) > MAX_DENSE_VOXELS:
+        raise InputError(f"@{path}@: grid {name!r} spans {'x'.join(map(str, shape))} voxels, more than the "
+                         f"{MAX_DENSE_VOXELS:,} a bake reads (its stage writes at most a 512-voxel edge); re-run the bake "
+                         "that wrote it.")
     if isinstance(g, _openvdb().Vec3SGrid):
         arr = np.zeros(shape + (3,), dtype=np.float32)
     else:

@@ -445,6 +445,130 @@ def bad_leaf_optics_attributes(d: Path) -> None:
     export(stage, d / "leaf_optics_attributes.usda")
 
 
+def _garbage(n: int, seed: int) -> bytes:
+    """``n`` seeded random bytes: the same garbage on every run."""
+    return np.random.default_rng(seed).bytes(n)
+
+
+def bad_garbage_vdb(d: Path) -> None:
+    stage = minimal("A Volume field names a .vdb file of random bytes (not an OpenVDB file).")
+    vol = UsdVol.Volume.Define(stage, "/Tree/FoliageLighting")
+    field = UsdVol.OpenVDBAsset.Define(stage, "/Tree/FoliageLighting/density")
+    field.CreateFilePathAttr(Sdf.AssetPath("./layers/garbage.vdb"))
+    field.CreateFieldNameAttr("density")
+    vol.CreateFieldRelationship("density", field.GetPath())
+    export(stage, d / "garbage_vdb.usda")
+    (d / "layers").mkdir(exist_ok=True)
+    (d / "layers" / "garbage.vdb").write_bytes(_garbage(2000, SEED + 10))
+
+
+def bad_meters_per_unit_huge(d: Path) -> None:
+    stage = minimal("metersPerUnit = 1e300: finite, but beyond the float32 the bakes record it in (it became inf).")
+    UsdGeom.SetStageMetersPerUnit(stage, 1e300)
+    export(stage, d / "meters_per_unit_huge.usda")
+
+
+def bad_up_axis_x(d: Path) -> None:
+    stage = minimal("upAxis = X, which USD does not allow (only Y or Z).")
+    stage.GetRootLayer().pseudoRoot.SetInfo("upAxis", "X")
+    export(stage, d / "up_axis_x.usda")
+
+
+def bad_sun_below_horizon(d: Path) -> None:
+    stage = new_stage(doc="The stage's sun (its DistantLight) is 30 degrees below the horizon.")
+    tree(stage)
+    sun(stage, elevation=-30.0)
+    export(stage, d / "sun_below_horizon.usda")
+
+
+def bad_projective_transform(d: Path) -> None:
+    stage = minimal("The tree's Xform is a matrix whose w is 0 (projective, no inverse).")
+    UsdGeom.Xformable(stage.GetPrimAtPath("/Tree")).AddTransformOp().Set(
+        Gf.Matrix4d(1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0))
+    export(stage, d / "projective_transform.usda")
+
+
+def bad_tiny_coordinates(d: Path) -> None:
+    pts, counts, idx = leaf_cards()
+    trunk, tc, ti = trunk_box()
+    export(minimal("Every coordinate scaled by 1e-30: the foliage is too small for any grid OpenVDB stores.",
+                   leaves=(pts * 1e-30, counts, idx), trunk=(trunk * 1e-30, tc, ti)), d / "tiny_coordinates.usda")
+
+
+def bad_denormal_coordinates(d: Path) -> None:
+    pts, counts, idx = leaf_cards()
+    trunk, tc, ti = trunk_box()
+    export(minimal("Every coordinate scaled by 1e-40: float32 denormals.", leaves=(pts * 1e-40, counts, idx),
+                   trunk=(trunk * 1e-40, tc, ti)), d / "denormal_coordinates.usda")
+
+
+def bad_tiny_single_leaf(d: Path) -> None:
+    stage = new_stage(doc="A single leaf triangle of area 5e-31.")
+    tree(stage, leaves=(np.array([(0.0, 0.0, 1.0), (1e-15, 0.0, 1.0), (0.0, 1e-15, 1.0)]), [3], [0, 1, 2]))
+    sun(stage)
+    export(stage, d / "tiny_single_leaf.usda")
+
+
+def bad_sun_colour_nan(d: Path) -> None:
+    stage = minimal("The sun's inputs:color is (nan, 1, 1).")
+    UsdLux.DistantLight(stage.GetPrimAtPath("/Lights/Sun")).CreateColorAttr(Gf.Vec3f(math.nan, 1.0, 1.0))
+    export(stage, d / "sun_colour_nan.usda")
+
+
+def bad_sun_colour_negative(d: Path) -> None:
+    stage = minimal("The sun's inputs:color is (-1, 1, 1).")
+    UsdLux.DistantLight(stage.GetPrimAtPath("/Lights/Sun")).CreateColorAttr(Gf.Vec3f(-1.0, 1.0, 1.0))
+    export(stage, d / "sun_colour_negative.usda")
+
+
+def bad_dome_intensity_nan(d: Path) -> None:
+    stage = minimal("A DomeLight (the sky) of inputs:intensity nan.")
+    UsdLux.DomeLight.Define(stage, "/Lights/Sky").CreateIntensityAttr(math.nan)
+    export(stage, d / "dome_intensity_nan.usda")
+
+
+def bad_non_utf8_layer(d: Path) -> None:
+    stage = minimal("The doc string holds bytes that are not UTF-8: ")
+    text = stage.GetRootLayer().ExportToString()  # (the stage held: its layer dies with it)
+    raw = text.encode("utf-8").replace(b"not UTF-8: ", b"not UTF-8: \xff\xfe", 1)
+    (d / "non_utf8_layer.usda").write_bytes(raw)
+
+
+def bad_unknown_attribute_type(d: Path) -> None:
+    stage = minimal("The leaf mesh's points are authored as point9f[], a type USD does not know.")
+    text = stage.GetRootLayer().ExportToString()  # (the stage held: its layer dies with it)
+    at = text.index('def Mesh "Leaves"')
+    broken = text[:at] + text[at:].replace("point3f[] points", "point9f[] points", 1)
+    (d / "unknown_attribute_type.usda").write_text(broken)
+
+
+def bad_unknown_xform_op(d: Path) -> None:
+    stage = minimal("The sun's xformOp is xformOp:frobnicate, an op USD does not know.")
+    text = stage.GetRootLayer().ExportToString()  # (the stage held: its layer dies with it)
+    broken = text.replace("xformOp:rotateXYZ", "xformOp:frobnicate")
+    (d / "unknown_xform_op.usda").write_text(broken)
+
+
+def bad_payload_garbage(d: Path) -> None:
+    stage = minimal("/Tree/Branch has a payload of layers/garbage.usda, random bytes under a .usda name.")
+    UsdGeom.Xform.Define(stage, "/Tree/Branch")
+    export(stage, d / "payload_garbage.usda")
+    edit(d / "payload_garbage.usda",
+         lambda layer: layer.GetPrimAtPath("/Tree/Branch").payloadList.Prepend(Sdf.Payload("./layers/garbage.usda")))
+    (d / "layers").mkdir(exist_ok=True)
+    (d / "layers" / "garbage.usda").write_bytes(_garbage(3000, SEED + 11))
+
+
+def bad_reference_garbage_usdc(d: Path) -> None:
+    stage = minimal("/Tree/Branch references layers/garbage.usdc: a crate header and random bytes.")
+    UsdGeom.Xform.Define(stage, "/Tree/Branch")
+    export(stage, d / "reference_garbage_usdc.usda")
+    edit(d / "reference_garbage_usdc.usda",
+         lambda layer: layer.GetPrimAtPath("/Tree/Branch").referenceList.Prepend(Sdf.Reference("./layers/garbage.usdc")))
+    (d / "layers").mkdir(exist_ok=True)
+    (d / "layers" / "garbage.usdc").write_bytes(b"PXR-USDC" + _garbage(3000, SEED + 12))
+
+
 CLEAN: list[Callable[[Path], None]] = [clean_minimal_tree, clean_y_up_centimetres, clean_forest_instancer, clean_layered_tree]
 BAD: list[Callable[[Path], None]] = [
     bad_empty_file, bad_not_usd_text, bad_syntax_error, bad_empty_stage, bad_no_meshes, bad_no_leaf_meshes,
@@ -454,6 +578,10 @@ BAD: list[Callable[[Path], None]] = [
     bad_missing_sublayer, bad_missing_reference, bad_sublayer_cycle, bad_instancer_proto_index_out_of_range,
     bad_instancer_missing_prototype, bad_instancer_zero_scale, bad_instancer_nested, bad_instancer_prototype_is_instancer,
     bad_primvar_length_mismatch, bad_primvar_indices_out_of_range, bad_missing_vdb, bad_leaf_optics_attributes,
+    bad_garbage_vdb, bad_meters_per_unit_huge, bad_up_axis_x, bad_sun_below_horizon, bad_projective_transform,
+    bad_tiny_coordinates, bad_denormal_coordinates, bad_tiny_single_leaf, bad_sun_colour_nan, bad_sun_colour_negative,
+    bad_dome_intensity_nan, bad_non_utf8_layer, bad_unknown_attribute_type, bad_unknown_xform_op, bad_payload_garbage,
+    bad_reference_garbage_usdc,
 ]
 
 
