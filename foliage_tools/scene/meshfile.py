@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from foliage_tools.scene.dependencies import require_file
 from foliage_tools.errors import InputError
 
 
@@ -96,8 +97,7 @@ def read_parts(path: Path, *, leaf_pattern: Any, options: CleanOptions) -> tuple
     unknown format, unreadable, or holds no faces.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"@{path}@: no such file.")
+    require_file(path, "Give the mesh file to import.")  # a FIFO or a device is named as such, never opened
     check_file(path)
     pymeshlab = _pymeshlab()
     warnings: list[str] = []

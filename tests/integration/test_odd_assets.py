@@ -204,15 +204,19 @@ def test_a_nan_voxel_in_an_upstream_vdb_is_exit_2_naming_the_file(tmp_path):
     assert not (tmp_path / "tree.lb.usda").exists()
 
 
-def test_a_missing_upstream_vdb_is_voxelized_anew_with_the_promised_warning(tmp_path):
+def test_a_missing_upstream_vdb_is_refused_with_validates_message(tmp_path):
+    # the bake's layer sublayers the input, so a Volume field naming a missing .vdb would make its own output fail
+    # validate: what validate fails, every bake refuses, in the same words (it was voxelized anew with a warning)
     layer, grid_file = _density_layer(tmp_path)
     grid_file.unlink()
     r = foliage("lb", layer, "-o", tmp_path / "tree.lb.usda", "--resolution", "8", "--json")
-    assert r.returncode == 0, r.stderr
-    report = json.loads(r.stdout)
-    warned = [w for w in report["warnings"] if "density grid was not reused" in w]  # was warnings: []
-    assert len(warned) == 1 and "@./tree.density.vdb@" in warned[0] and "does not exist" in warned[0], report["warnings"]
-    assert np.isfinite(report["seconds"])
+    assert r.returncode == 2, r.stderr
+    message = json.loads(r.stdout)["error"]["message"]
+    assert "@./tree.density.vdb@" in message and "does not exist" in message, message
+    # one finding per field naming the file (density, woodFraction); the bake names the first and counts the rest
+    found = [f for f in validate(layer) if f.severity == ERROR and "@./tree.density.vdb@" in f.message]
+    assert len(found) == 2 and found[0].message.split("@./tree.density.vdb@")[-1] in message, (found, message)
+    assert not (tmp_path / "tree.lb.usda").exists()
 
 
 def test_invisible_leaves_are_a_validate_error_as_every_bake_refuses_them(tmp_path):
