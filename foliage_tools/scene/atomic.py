@@ -44,6 +44,7 @@ import secrets
 import shutil
 import signal
 import socket
+import stat
 import tempfile
 import threading
 import time
@@ -129,15 +130,6 @@ def _alive(pid: int) -> bool:
     except PermissionError:  # someone else's process
         return True
     return True
-
-
-def _owner_alive(staging: Path, pid: int) -> bool:
-    """Whether the run that made ``staging`` may still be running (a run on another host counts as alive)."""
-    try:
-        host, _ = (staging / OWNER).read_text(encoding="utf-8").split()
-    except (OSError, ValueError):
-        host = socket.gethostname()
-    return host != socket.gethostname() or _alive(pid)
 
 
 @contextlib.contextmanager
@@ -389,6 +381,79 @@ def atomic_outputs(paths: list[Path]) -> Iterator[dict[Path, Path]]:
         commit.discard()
 
 
+def _plain_name(name: str) -> bool:
+    """A name a commit can stage: one path component, not hidden (so neither ``.`` nor ``..``), no NUL."""
+    return bool(name) and "/" not in name and "\0" not in name and not name.startswith(".")
+
+
+def _refuse(staging: Path, why: str) -> OutputError:
+    return OutputError(
+        f"@{staging}@ looks like a foliage staging folder, but {why}; a foliage run never leaves that, so nothing "
+        f"was moved or removed. Look at what it holds, then remove it (rm -r '{staging}') and run the command again."
+    )
+
+
+def _lstat(path: Path) -> os.stat_result | None:
+    try:
+        return os.lstat(path)
+    except FileNotFoundError:
+        return None
+
+
+def staged_names(staging: Path) -> list[str] | None:
+    """The names the journal of ``staging`` lists (None: no journal, the run died before its commit).
+
+    Only what a commit writes is accepted (:class:`OutputError` otherwise,
+    naming the folder): ``staging`` a real directory (not a symbolic link),
+    its journal a regular file, each name in it a plain file name (no ``/``,
+    not hidden, so no ``..``) and each staged file still there a regular
+    file. A recovery that follows it then only moves files the journal's own
+    run staged, to names in the directory that holds ``staging``.
+    """
+    st = _lstat(staging)
+    if st is None:
+        return None
+    if not stat.S_ISDIR(st.st_mode):
+        raise _refuse(staging, "it is a symbolic link or not a directory")
+    journal = staging / JOURNAL
+    jst = _lstat(journal)
+    if jst is None:
+        return None
+    if not stat.S_ISREG(jst.st_mode):
+        raise _refuse(staging, f"its journal {JOURNAL} is not a regular file")
+    try:
+        text = journal.read_text(encoding="utf-8")
+    except FileNotFoundError:  # its run finished meanwhile
+        return None
+    except UnicodeDecodeError:
+        raise _refuse(staging, f"its journal {JOURNAL} is not text") from None
+    except OSError as exc:
+        raise _refuse(staging, f"its journal {JOURNAL} cannot be read ({exc.strerror})") from None
+    names = [n for n in text.split("\n") if n]
+    for n in names:
+        if not _plain_name(n):
+            raise _refuse(staging, f"its journal names {n!r}, which is not a file name inside {staging.parent}")
+        nst = _lstat(staging / n)
+        if nst is not None and not stat.S_ISREG(nst.st_mode):
+            raise _refuse(staging, f"its {n!r} is a symbolic link or not a regular file")
+    return names
+
+
+def _owner(staging: Path) -> tuple[str, int | None]:
+    """(host, pid) of the run that made ``staging`` as its ``.owner`` says; this host and None where it says nothing."""
+    path = staging / OWNER
+    st = _lstat(path)
+    if st is None:
+        return socket.gethostname(), None
+    if not stat.S_ISREG(st.st_mode):
+        raise _refuse(staging, f"its {OWNER} is a symbolic link or not a regular file")
+    try:
+        host, pid = path.read_text(encoding="utf-8").split()
+        return host, int(pid)
+    except (OSError, ValueError):
+        return socket.gethostname(), None
+
+
 def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
     """Finish or remove what killed runs left behind for the outputs ``names`` in ``directory``.
 
@@ -396,7 +461,11 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
     finished if it holds a journal (its result was committed: the remaining
     renames are done) and removed otherwise; so are the ``.STEM.tmp-PID.EXT``
     temporaries of earlier versions. Each action is noted in ``warnings``.
-    Runs still alive are left alone.
+    Runs still alive are left alone, and so are the staging directories of
+    runs on another host (this host cannot tell whether they are alive), with
+    a warning naming the host. Only what :func:`staged_names` accepts is
+    followed: anything else is refused (:class:`OutputError`) before anything
+    moves.
     """
     directory = Path(directory)
     names = list(names)
@@ -408,12 +477,26 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
     except OSError:
         return
     stale = []
+    here = socket.gethostname()
     for entry in entries:
         m = _STAGING.fullmatch(entry.name)
-        if m and m["label"] in labels and entry.is_dir():
-            if not _owner_alive(entry, int(m["pid"])):
-                stale.append((entry, int(m["pid"])))
-        elif (lm := legacy.fullmatch(entry.name)) and entry.is_file():
+        st = _lstat(entry)
+        if st is None:
+            continue
+        if m and m["label"] in labels:
+            staged_names(entry)  # refuses a symbolic link, a planted journal, ... whoever it claims to be
+            if not stat.S_ISDIR(st.st_mode):
+                continue
+            host, _ = _owner(entry)
+            pid = int(m["pid"])
+            if host != here:
+                warnings.append(
+                    f"@{entry}@ was left by a foliage run on the host {host} (process {pid}), which this host cannot "
+                    f"check, so it is left as it is; once no foliage run on {host} writes into {directory}, remove it "
+                    f"(rm -r '{entry}').")
+            elif not _alive(pid):
+                stale.append((entry, pid))
+        elif (lm := legacy.fullmatch(entry.name)) and stat.S_ISREG(st.st_mode):
             pid = int(lm["pid"])
             if not _alive(pid):
                 stale.append((entry, pid))
@@ -421,15 +504,16 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
         return
     with _directory_lock(directory), _interrupts_held():
         for entry, pid in stale:
-            if not entry.exists():  # another run cleaned it meanwhile
+            st = _lstat(entry)
+            if st is None:  # another run cleaned it meanwhile
                 continue
-            if entry.is_file():
+            if stat.S_ISREG(st.st_mode):
                 entry.unlink(missing_ok=True)
                 warnings.append(f"removed @{entry}@, a temporary file left by an interrupted run (process {pid}).")
                 continue
-            journal = entry / JOURNAL
-            if journal.is_file():
-                todo = [n for n in journal.read_text(encoding="utf-8").split("\n") if n and (entry / n).is_file()]
+            journal = staged_names(entry)  # again, under the lock: what is moved is what was checked
+            if journal is not None:
+                todo = [n for n in journal if _lstat(entry / n) is not None]
                 try:
                     for n in todo:
                         os.replace(entry / n, directory / n)
@@ -448,17 +532,21 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
 
 
 def pending_commits(directory: Path) -> list[tuple[Path, list[str]]]:
-    """Staging directories in ``directory`` that hold a journal: commits a killed run did not finish, and their names."""
+    """Staging directories in ``directory`` that hold a journal: commits a killed run did not finish, and their names.
+
+    Only journals :func:`staged_names` accepts are listed (this only reads; :func:`recover` refuses the others).
+    """
     out: list[tuple[Path, list[str]]] = []
     try:
         entries = list(Path(directory).iterdir())
     except OSError:
         return out
     for entry in entries:
-        if _STAGING.fullmatch(entry.name) and (entry / JOURNAL).is_file():
+        if _STAGING.fullmatch(entry.name):
             try:
-                names = [n for n in (entry / JOURNAL).read_text(encoding="utf-8").split("\n") if n]
-            except OSError:
+                names = staged_names(entry)
+            except (OutputError, OSError):
                 continue
-            out.append((entry, names))
+            if names is not None:
+                out.append((entry, names))
     return out
