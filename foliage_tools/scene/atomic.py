@@ -40,6 +40,7 @@ import fcntl
 import hashlib
 import os
 import re
+import resource
 import secrets
 import shutil
 import signal
@@ -236,6 +237,79 @@ def _move(directory: Path, staging: Path, names: list[str]) -> list[Path]:
     return done
 
 
+def file_size_limit() -> int | None:
+    """This process's file-size limit in bytes (``ulimit -f``, RLIMIT_FSIZE); None when there is none."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    return None if soft == resource.RLIM_INFINITY else int(soft)
+
+
+def _size_limit_error(final: Path, size: int | None = None) -> OutputError:
+    limit = file_size_limit()
+    cut = f"was cut at {size:,} bytes: " if size is not None else "cannot be written whole: "
+    what = f"{limit:,} bytes" if limit is not None else "set"
+    return OutputError(
+        f"@{final}@ {cut}the file-size limit of this process (ulimit -f, RLIMIT_FSIZE) is {what}. Raise it "
+        "(`ulimit -f unlimited`) or write a smaller result, and run the command again. Nothing was written: an earlier "
+        "result there is left as it was."
+    )
+
+
+def _read_back(path: Path) -> str | None:
+    """Why the file at ``path`` does not read back whole as what its extension says (None: it does)."""
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".vdb":
+            from foliage_tools.scene.vdb import unreadable_grids
+
+            return unreadable_grids(path)
+        if suffix in (".usda", ".usdc", ".usd"):
+            from pxr import Sdf
+
+            if Sdf.Layer.OpenAsAnonymous(str(path)) is None:
+                return "USD cannot open it"
+        elif suffix in (".png", ".exr"):
+            import OpenImageIO as oiio
+
+            inp = oiio.ImageInput.open(str(path))
+            if inp is None:
+                return oiio.geterror() or "not an image"
+            try:
+                if inp.read_image() is None:
+                    return inp.geterror() or "its pixels cannot be read"
+            finally:
+                inp.close()
+        elif suffix == ".json":
+            import json
+
+            json.loads(path.read_text(encoding="utf-8"))
+    except Exception as exc:  # the readers raise assorted types for a cut file
+        return _short(exc)
+    return None
+
+
+def check_written(path: Path, final: Path) -> None:
+    """Before a commit: the file staged at ``path`` (for ``final``) is whole.
+
+    A write past the file-size limit (``ulimit -f``) fails with EFBIG (Python
+    ignores SIGXFSZ), which OpenVDB's and OpenImageIO's writers do not all
+    report: the file is then exactly as long as the limit. A file that long,
+    or one that does not read back as what its extension says (a ``.vdb``
+    whose grids all read, a layer USD opens, an image whose pixels read), is
+    refused (:class:`OutputError`), so it never replaces an earlier result.
+    """
+    size = path.stat().st_size
+    limit = file_size_limit()
+    if limit is not None and size >= limit:
+        raise _size_limit_error(final, size)
+    problem = _read_back(path)
+    if problem is not None:
+        raise OutputError(
+            f"@{final}@: the file just written does not read back whole ({problem}), so it was not moved into place: "
+            "check the disk and the limits of this process (`ulimit -a`) and run the command again. Nothing was "
+            "written: an earlier result there is left as it was."
+        )
+
+
 class Commit:
     """Files that become visible together in ``directory`` (module docstring).
 
@@ -284,6 +358,10 @@ class Commit:
             raise ValueError(f"not staged: {missing}")
         for n in names:
             _fsync(staging / n)
+        # a commit into another result's staging directory (a bake's stage) names the file by its final place
+        where = self.directory.parent if _STAGING.fullmatch(self.directory.name) else self.directory
+        for n in names:
+            check_written(staging / n, where / n)
         try:
             return self._commit(names)
         except KeyboardInterrupt as exc:
@@ -367,6 +445,8 @@ def atomic_outputs(paths: list[Path]) -> Iterator[dict[Path, Path]]:
     except OutputError:
         raise
     except Exception as exc:
+        if isinstance(exc, OSError) and exc.errno == errno.EFBIG:
+            raise _size_limit_error(Path(exc.filename) if exc.filename else paths[-1]) from None
         if commit.staging is not None and _disk_full(commit.staging, exc):
             raise OutputError(
                 f"@{paths[-1]}@: the disk holding {directory} is full ({_short(exc)}); free some space or choose another "
