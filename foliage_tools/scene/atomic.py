@@ -54,6 +54,7 @@ from types import FrameType
 from typing import Any, Callable, Iterable, Iterator
 
 from foliage_tools.errors import OutputError
+from foliage_tools.interrupts import INTERRUPT_SIGNALS, interrupt_noted
 
 JOURNAL = ".commit"
 """In a staging directory: the names to move into place, one a line, in order (present = committed)."""
@@ -63,9 +64,6 @@ KILL_ENV = "FOLIAGE_TEST_KILL_AT_RENAME"
 
 #: Test hook: called as ``before_rename(index, staged_path, final_path)`` before each rename of a commit.
 before_rename: Callable[[int, Path, Path], None] | None = None
-
-#: Signals that interrupt a run (the CLI maps them to exit 130); held back during the renames.
-INTERRUPT_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 #: How long a commit waits for another run's commit into the same directory (seconds; commits take milliseconds).
 LOCK_TIMEOUT = 60.0
@@ -134,7 +132,7 @@ def _alive(pid: int) -> bool:
 
 
 @contextlib.contextmanager
-def _interrupts_held() -> Iterator[None]:
+def _interrupts_held() -> Iterator[list[tuple[int, FrameType | None]]]:
     """Hold SIGINT/SIGTERM/SIGHUP back; one that arrived meanwhile is handled (and raises) when the block ends.
 
     Done at Python level, by swapping the handlers: blocking the signals in
@@ -144,10 +142,10 @@ def _interrupts_held() -> Iterator[None]:
     action, ignored) are left as they are; only the main thread can swap
     handlers, so elsewhere nothing is held back.
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     caught: list[tuple[int, FrameType | None]] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield caught
+        return
     previous: dict[int, Callable[[int, FrameType | None], Any]] = {}
     for sig in INTERRUPT_SIGNALS:
         handler = signal.getsignal(sig)
@@ -155,7 +153,7 @@ def _interrupts_held() -> Iterator[None]:
             previous[sig] = handler
             signal.signal(sig, lambda signum, frame: caught.append((signum, frame)))
     try:
-        yield
+        yield caught
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
@@ -189,6 +187,70 @@ def _directory_lock(directory: Path) -> Iterator[None]:
                 break
         yield
     finally:
+        os.close(fd)
+
+
+LOCK_SUFFIX = ".lock"
+"""``.LABEL.lock`` in an output directory: held by the one run writing the result LABEL there (:func:`run_lock`)."""
+
+
+@contextlib.contextmanager
+def run_lock(directory: Path, label: str) -> Iterator[None]:
+    """Hold the result ``label`` in ``directory`` for one run, from its checks to its commit; refuse a second.
+
+    A second run writing the same result into the same directory at the same
+    time is refused at once (:class:`OutputError`, exit 2, naming the run that
+    holds it), not made to wait: its result would replace the first one's, so
+    two pipeline steps writing one output is a mistake to fix, and a step that
+    waited silently could wait for hours. Results of other names in the same
+    directory do not wait for each other. The lock is ``flock`` on
+    ``.LABEL.lock``, removed when the run ends (the kernel drops the lock of
+    a killed run; its file is then reused). Where the filesystem has no
+    ``flock``, nothing is locked.
+    """
+    path = Path(directory) / f".{staging_label(label)}{LOCK_SUFFIX}"
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+        except OSError as exc:
+            if exc.errno == errno.ELOOP:
+                raise OutputError(f"@{path}@ is a symbolic link, where this run keeps its lock; a foliage run never "
+                                  f"makes one: remove it (rm '{path}') and run the command again.") from None
+            yield  # an unwritable directory: the run's own checks say so
+            return
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                owner = os.read(fd, 256).decode("utf-8", "replace").split()
+            except OSError:
+                owner = []
+            os.close(fd)
+            who = f"process {owner[1]} on {owner[0]}" if len(owner) == 2 else "another process"
+            raise OutputError(
+                f"@{Path(directory) / label}@: another foliage run ({who}) is writing this result into {directory} now; "
+                "wait for it to finish, or write into another directory. Nothing was written.") from None
+        except OSError:  # e.g. NFS without flock
+            os.close(fd)
+            yield
+            return
+        try:  # the run that held it may have removed the file meanwhile (and a third locked a new one): retry
+            same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{socket.gethostname()} {os.getpid()}\n".encode())
+    except OSError:
+        pass
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
         os.close(fd)
 
 
@@ -365,13 +427,21 @@ class Commit:
         try:
             return self._commit(names)
         except KeyboardInterrupt as exc:
-            if self.committed is not None and not isinstance(exc, InterruptedAfterCommit):
+            # a commit into another result's staging directory (a bake's stage) is not a result anyone sees: the
+            # enclosing run removes it, so its interrupt is a plain one
+            visible = not _STAGING.fullmatch(self.directory.name)
+            if visible and self.committed is not None and not isinstance(exc, InterruptedAfterCommit):
                 raise InterruptedAfterCommit(self.committed) from None
             raise
 
     def _commit(self, names: list[str]) -> list[Path]:
         assert self.staging is not None, "the commit is already done or discarded"
-        with _directory_lock(self.directory), _interrupts_held():
+        with _directory_lock(self.directory), _interrupts_held() as caught:
+            noted = caught[0][0] if caught else interrupt_noted()
+            if noted is not None:
+                # the run was interrupted (its KeyboardInterrupt may have been lost on the way, in a library's
+                # callback or cleanup): nothing is committed after that
+                raise KeyboardInterrupt(signal.Signals(noted).name)
             for n in names:
                 final = self.directory / n
                 if final.is_dir() and not final.is_symlink():
@@ -580,6 +650,8 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
             pid = int(lm["pid"])
             if not _alive(pid):
                 stale.append((entry, pid))
+        elif entry.name.endswith(LOCK_SUFFIX) and entry.name[1:-len(LOCK_SUFFIX)] in labels and stat.S_ISREG(st.st_mode):
+            _remove_stale_lock(entry)
     if not stale:
         return
     with _directory_lock(directory), _interrupts_held():
@@ -609,6 +681,22 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
             else:
                 warnings.append(f"removed @{entry}@, the unfinished work of an interrupted run (process {pid}).")
             shutil.rmtree(entry, ignore_errors=True)
+
+
+def _remove_stale_lock(path: Path) -> None:
+    """Remove a :func:`run_lock` file that no run holds (its run was killed); one held is left alone."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino:
+            os.unlink(path)
+    except OSError:  # held (BlockingIOError), gone, or no flock here
+        pass
+    finally:
+        os.close(fd)
 
 
 def pending_commits(directory: Path) -> list[tuple[Path, list[str]]]:
