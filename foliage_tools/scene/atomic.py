@@ -6,7 +6,11 @@ output directory itself, ``.LABEL.tmp-PID-TOKEN`` (beside the outputs, so the
 final renames never cross a device: an output directory that is a mount point
 works). When every file is complete, :meth:`Commit.commit`
 
-1. refuses, before anything moves, a final name that is a directory;
+0. checks that every staged file is whole (:func:`check_written`: not cut at
+   the file-size limit, and read back as what its extension says);
+1. refuses, before anything moves, a final name that is a directory, and
+   starts no commit once the run has been interrupted
+   (``foliage_tools.interrupts``);
 2. writes a journal (``.commit``, the list of names) into the staging
    directory: from then on the new result is the result;
 3. renames the files into place, grids before the layers that refer to them,
@@ -20,9 +24,12 @@ every grid file and upstream layer they were written with (``scene.integrity``),
 so ``validate`` and every stage reading the result refuse the mix and name the
 stale file; and the journal lets the next run on the same output finish the
 renames (:func:`recover`), which also removes the staging directories of
-runs that died before step 2. Commits into one directory are serialised by a
-lock on the directory, so two concurrent writers of one output cannot
-interleave their renames.
+runs that died before step 2. Recovery follows only what a commit writes
+(:func:`staged_names`: plain file names, no symbolic links), so a planted
+journal cannot move anything else. Commits into one directory are serialised
+by a lock on the directory, so two concurrent writers of one output cannot
+interleave their renames; :func:`run_lock` keeps a second run off a result
+for the whole of the first (``bake``).
 
 Test hook: :data:`before_rename` (a callable) and the environment variable
 ``FOLIAGE_TEST_KILL_AT_RENAME=N[:SIGNAL]`` (the process sends itself SIGNAL,
@@ -359,7 +366,10 @@ def check_written(path: Path, final: Path) -> None:
     whose grids all read, a layer USD opens, an image whose pixels read), is
     refused (:class:`OutputError`), so it never replaces an earlier result.
     """
-    size = path.stat().st_size
+    st = os.lstat(path)
+    if not stat.S_ISREG(st.st_mode):
+        raise OutputError(f"@{final}@: what was staged for it is not a regular file (a symbolic link?); nothing was written.")
+    size = st.st_size
     limit = file_size_limit()
     if limit is not None and size >= limit:
         raise _size_limit_error(final, size)
@@ -408,7 +418,8 @@ class Commit:
     def files(self) -> list[str]:
         """The names staged so far (hidden entries are the commit's own)."""
         assert self.staging is not None, "the commit is already done or discarded"
-        return sorted(p.name for p in self.staging.iterdir() if not p.name.startswith(".") and p.is_file())
+        return sorted(p.name for p in self.staging.iterdir()
+                      if not p.name.startswith(".") and stat.S_ISREG(os.lstat(p).st_mode))
 
     def commit(self, names: Iterable[str]) -> list[Path]:
         """Move ``names`` into place together (module docstring, steps 1-4); the final paths, in order."""
@@ -532,8 +543,12 @@ def atomic_outputs(paths: list[Path]) -> Iterator[dict[Path, Path]]:
 
 
 def _plain_name(name: str) -> bool:
-    """A name a commit can stage: one path component, not hidden (so neither ``.`` nor ``..``), no NUL."""
-    return bool(name) and "/" not in name and "\0" not in name and not name.startswith(".")
+    """A name a commit can stage: one path component (no ``/``, neither ``.`` nor ``..``, no NUL), and none of the
+    names this module keeps for itself (the journal, the owner, staging folders, locks). An output named with a
+    leading dot (``-o .x.usda``) is a plain name too: it stays inside the directory like any other."""
+    if not name or "/" in name or "\0" in name or name in (".", ".."):
+        return False
+    return name not in (JOURNAL, JOURNAL + ".tmp", OWNER) and not _STAGING.fullmatch(name) and not name.endswith(LOCK_SUFFIX)
 
 
 def _refuse(staging: Path, why: str) -> OutputError:

@@ -44,7 +44,8 @@ def plant_staging(directory: Path, label: str, journal: list[str] | None, *, fil
     staging.mkdir()
     (staging / atomic.OWNER).write_text(f"{host or socket.gethostname()} {pid}\n", encoding="utf-8")
     if files is None:
-        files = {n: f"staged {n}\n" for n in journal or () if "/" not in n and "\0" not in n and not n.startswith(".")}
+        files = {n: f"staged {n}\n" for n in journal or () if "/" not in n and "\0" not in n and n not in (".", "..")
+                 and n not in (atomic.JOURNAL, atomic.OWNER) and not n.endswith(".lock") and ".tmp-" not in n}
     for name, text in files.items():
         (staging / name).write_text(text, encoding="utf-8")
     if journal is not None:

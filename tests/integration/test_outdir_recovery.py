@@ -64,7 +64,8 @@ def test_a_staging_folder_that_is_a_symlink_is_refused_and_its_target_is_untouch
     assert sorted(p.name for p in out.iterdir()) == [link.name] and link.is_symlink()
 
 
-@pytest.mark.parametrize("name", ["../a.txt", "/etc/hostname", "sub/a.txt", ".hidden", "..", "a\0b"])
+@pytest.mark.parametrize("name", ["../a.txt", "/etc/hostname", "sub/a.txt", "..", ".", "a\0b", atomic.OWNER,
+                                  atomic.JOURNAL, ".x.usda.tmp-1-ab", ".x.bake.lock"])
 def test_a_journal_name_that_is_not_a_plain_file_name_is_refused(tmp_path, name):
     staging = plant_staging(tmp_path, "x.usda", [name])
     with pytest.raises(OutputError, match="not a file name inside"):
@@ -86,6 +87,9 @@ def test_a_well_formed_journal_is_still_finished(tmp_path):
     warnings: list[str] = []
     atomic.recover(tmp_path, ["x.usda"], warnings)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x.usda", "x.vdb"] and not staging.exists()
+    hidden_output = plant_staging(tmp_path, ".y.usda", [".y.usda"], files={".y.usda": "y\n"})  # -o .y.usda
+    atomic.recover(tmp_path, [".y.usda"], warnings)
+    assert (tmp_path / ".y.usda").read_text() == "y\n" and not hidden_output.exists()
     assert any("finished the write of an interrupted run" in w for w in warnings), warnings
 
 
