@@ -30,7 +30,7 @@ class _Interrupts:
         """The first interrupting signal of this run (kept whatever became of its KeyboardInterrupt)."""
         self.pending: int | None = None
         """A signal held back until the import it landed in (or the command's start) is over."""
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()  # reentrant: the handler runs in the main thread, which may hold it
         self.on_signal: Callable[[int], None] | None = None
 
 
