@@ -144,9 +144,10 @@ def _locked_bake(path: Path, outdir: Path, params: BakeParams, progress: Progres
     _check_outputs(path, outdir, names)
     recover(outdir, [label, *names], report.warnings)
     report.warnings += _legacy_staging(outdir)
-    commit = Commit(outdir, label)
-    assert commit.staging is not None  # a new Commit's staging directory, until it commits or is discarded
+    commit: Commit | None = None
     try:
+        commit = Commit(outdir, label)
+        assert commit.staging is not None  # a new Commit's staging directory, until it commits or is discarded
         source, copied = path, []
         if params.portable:
             from foliage_tools.scene.portable import write_portable_input
@@ -158,7 +159,8 @@ def _locked_bake(path: Path, outdir: Path, params: BakeParams, progress: Progres
         _name_the_input(stages, commit.staging, path)
         moved = _commit(path, outdir, commit, portable_input=source if params.portable else None)
     except BaseException:
-        commit.discard()
+        if commit is not None:
+            commit.discard()
         raise
     final = moved[f"{Path(path).stem}.lb.{ext}"]
     for r in stages.values():

@@ -216,49 +216,57 @@ def run_lock(directory: Path, label: str) -> Iterator[None]:
     ``flock``, nothing is locked.
     """
     path = Path(directory) / f".{staging_label(label)}{LOCK_SUFFIX}"
-    while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
-        except OSError as exc:
-            if exc.errno == errno.ELOOP:
-                raise OutputError(f"@{path}@ is a symbolic link, where this run keeps its lock; a foliage run never "
-                                  f"makes one: remove it (rm '{path}') and run the command again.") from None
-            yield  # an unwritable directory: the run's own checks say so
-            return
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+    fd, made, locked = -1, False, False
+    try:  # one try from the first open on: an interrupt anywhere in here leaves no lock file of this run's behind
+        while True:
             try:
-                owner = os.read(fd, 256).decode("utf-8", "replace").split()
-            except OSError:
-                owner = []
+                try:
+                    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
+                    made = True
+                except FileExistsError:
+                    fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
+            except OSError as exc:
+                if exc.errno == errno.ELOOP:
+                    raise OutputError(f"@{path}@ is a symbolic link, where this run keeps its lock; a foliage run "
+                                      f"never makes one: remove it (rm '{path}') and run the command again.") from None
+                if exc.errno == errno.ENOENT:  # removed between the two opens by the run that held it: again
+                    continue
+                break  # an unwritable directory: the run's own checks say so
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                made = False  # another run locked it, even if this one created it: it is that run's to remove
+                try:
+                    owner = os.read(fd, 256).decode("utf-8", "replace").split()
+                except OSError:
+                    owner = []
+                who = f"process {owner[1]} on {owner[0]}" if len(owner) == 2 else "another process"
+                raise OutputError(
+                    f"@{Path(directory) / label}@: another foliage run ({who}) is writing this result into {directory} "
+                    "now; wait for it to finish, or write into another directory. Nothing was written.") from None
+            except OSError:  # e.g. NFS without flock: nothing is locked
+                break
+            locked = True
+            try:  # the run that held it may have removed the file meanwhile (and a third locked a new one): again
+                same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            locked = made = False
             os.close(fd)
-            who = f"process {owner[1]} on {owner[0]}" if len(owner) == 2 else "another process"
-            raise OutputError(
-                f"@{Path(directory) / label}@: another foliage run ({who}) is writing this result into {directory} now; "
-                "wait for it to finish, or write into another directory. Nothing was written.") from None
-        except OSError:  # e.g. NFS without flock
-            os.close(fd)
-            yield
-            return
-        try:  # the run that held it may have removed the file meanwhile (and a third locked a new one): retry
-            same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            break
-        os.close(fd)
-    try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{socket.gethostname()} {os.getpid()}\n".encode())
-    except OSError:
-        pass
-    try:
+            fd = -1
+        if locked:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, 0)
+                os.write(fd, f"{socket.gethostname()} {os.getpid()}\n".encode())
         yield
     finally:
-        with contextlib.suppress(OSError):
-            os.unlink(path)
-        os.close(fd)
+        if locked or made:
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+        if fd >= 0:
+            os.close(fd)
 
 
 def _fsync(path: Path, directory: bool = False) -> None:
@@ -397,6 +405,9 @@ class Commit:
         try:
             self.staging.mkdir()
             (self.staging / OWNER).write_text(f"{socket.gethostname()} {os.getpid()}\n", encoding="utf-8")
+        except KeyboardInterrupt:  # nobody else will remove it: the caller never gets this Commit
+            shutil.rmtree(self.staging, ignore_errors=True)
+            raise
         except OSError as exc:
             shutil.rmtree(self.staging, ignore_errors=True)
             raise OutputError(
