@@ -8,22 +8,28 @@ their own modules and are added to the group at the bottom.
 
 from __future__ import annotations
 
-import errno
-import signal
 import sys
-from pathlib import Path
-from typing import IO, TYPE_CHECKING, cast
 
-import click
-from rich.markup import escape
-from rich.table import Table
+from foliage_tools import interrupts
 
-from foliage_tools import __version__
-from foliage_tools.cli import common, console
-from foliage_tools.cli.helpformat import FoliageCommand
-from foliage_tools.cli.common import OUT, SCENE, common_options, config_option, execute, run, setup_logging, volume_purpose_option
-from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_FINDINGS, EXIT_INTERRUPTED
-from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE
+if getattr(sys.modules.get("__main__"), "__file__", "").endswith("/foliage"):  # the `foliage` script: before the imports
+    interrupts.install_interrupts()
+
+import errno  # noqa: E402
+import signal  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import IO, TYPE_CHECKING, cast  # noqa: E402
+
+import click  # noqa: E402
+from rich.markup import escape  # noqa: E402
+from rich.table import Table  # noqa: E402
+
+from foliage_tools import __version__  # noqa: E402
+from foliage_tools.cli import common, console  # noqa: E402
+from foliage_tools.cli.helpformat import FoliageCommand  # noqa: E402
+from foliage_tools.cli.common import OUT, SCENE, common_options, config_option, execute, run, setup_logging, volume_purpose_option  # noqa: E402
+from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_FINDINGS, EXIT_INTERRUPTED  # noqa: E402
+from foliage_tools.params import DEFAULT_RESOLUTION, RESOLUTION_RANGE  # noqa: E402
 
 if TYPE_CHECKING:
     from foliage_tools.pipeline.report import Report
@@ -300,20 +306,22 @@ def _add_commands() -> None:
 _add_commands()
 
 
-def _interrupt(signum: int, _frame) -> None:
-    """SIGTERM / SIGHUP: stop like Ctrl-C, so temporaries are removed and the exit code is 130."""
-    common.last_signal = signal.Signals(signum).name
-    raise KeyboardInterrupt(common.last_signal)
+def _note_signal(signum: int) -> None:
+    """SIGTERM / SIGHUP are named in the message of the interrupted run (Ctrl-C is just "interrupted")."""
+    if signum != signal.SIGINT:
+        common.last_signal = signal.Signals(signum).name
 
 
 def install_interrupt_handlers() -> None:
-    """SIGTERM (timeouts, CI cancellation, Kubernetes) and SIGHUP interrupt a run as SIGINT does (DESIGN.md section 3).
+    """SIGINT, SIGTERM (timeouts, CI cancellation, Kubernetes) and SIGHUP interrupt a run (DESIGN.md section 3).
 
-    A signal the caller set to be ignored (``nohup`` ignores SIGHUP) stays ignored.
+    ``foliage_tools.interrupts``: exit 130 wherever the signal lands (one inside an import is held until the import is
+    over). A signal the caller set to be ignored (``nohup`` ignores SIGHUP) stays ignored.
     """
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        if signal.getsignal(sig) == signal.SIG_DFL:
-            signal.signal(sig, _interrupt)
+    interrupts.install_interrupts(_note_signal)
+    noted = interrupts.interrupt_noted()
+    if noted is not None:  # it came while this module was being imported, before the callback above was set
+        _note_signal(noted)
 
 
 def main() -> None:
@@ -321,20 +329,28 @@ def main() -> None:
 
     click's standalone mode turns Ctrl-C / SIGINT outside a command body (while a command's modules are
     still being imported, say) into "Aborted!" and exit 1; DESIGN.md section 3 says 130. SIGTERM and
-    SIGHUP are interrupts too.
+    SIGHUP are interrupts too. An interrupt whose KeyboardInterrupt was lost on its way (swallowed by a
+    library) still makes the exit code 130; no commit starts after it (``scene.atomic``).
     """
     install_interrupt_handlers()
     refusal = None if {"-h", "--help", "--version"} & set(sys.argv[1:]) else common.address_space_problem()
     try:
-        code = 2 if refusal else cli.main(prog_name="foliage", standalone_mode=False)
+        interrupts.interrupts_ready()
         if refusal:
             console.error(refusal)
+            code = 2
             _json_error(code, "MemoryError", refusal)
-    except click.exceptions.Abort:
+        else:
+            code = cli.main(prog_name="foliage", standalone_mode=False)
+    except SystemExit as exc:  # `run` exits with the command's code
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else EXIT_BAD_INPUT)
+    except (click.exceptions.Abort, KeyboardInterrupt):
+        interrupts.interrupts_done()
         console.stderr.print(common.interrupted_message(None))
         code = EXIT_INTERRUPTED
         _json_error(code, "Interrupted", common.interrupted_message(None))
     except click.ClickException as exc:
+        interrupts.interrupts_done()
         try:
             exc.show(file=cast(IO[str], console.PrintableStream(sys.stderr)))  # escape sequences shown escaped
         except OSError:  # stderr is full or gone: the exit code (and --json) still say it
@@ -352,6 +368,11 @@ def main() -> None:
         console.error(message)
         code = EXIT_BAD_INPUT
         _json_error(code, kind, message)
+    interrupts.interrupts_done()
+    if interrupts.interrupt_noted() is not None and code in (0, None, EXIT_FINDINGS):
+        how = f"interrupted ({common.last_signal})" if common.last_signal else "interrupted"
+        console.stderr.print(f"{how} as the run ended; what it wrote is complete.", highlight=False, soft_wrap=True)
+        code = EXIT_INTERRUPTED
     sys.exit(console.finish(code or 0))
 
 

@@ -31,7 +31,7 @@ from foliage_tools.params import DEFAULT_RESOLUTION, GRID_PRECISIONS, DensityPar
 from foliage_tools.pipeline.direct import DirectChoice
 from foliage_tools.pipeline.gather import check_gather
 from foliage_tools.pipeline.report import Progress, Report, Silent
-from foliage_tools.scene.atomic import Commit, recover
+from foliage_tools.scene.atomic import Commit, recover, run_lock
 from foliage_tools.pipeline.stats import BakeStats
 
 
@@ -133,17 +133,23 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
     created = _make_dirs(outdir.absolute(), outdir)
     label = f"{Path(path).stem}.bake"
     try:
-        ext = layer_extension(path, params)
-        names = planned_outputs(path, params, ext)
-        _check_outputs(path, outdir, names)
-        recover(outdir, [label, *names], report.warnings)
-        report.warnings += _legacy_staging(outdir)
+        with run_lock(outdir, label):  # one bake of this asset into OUTDIR at a time, from the checks to the commit
+            return _locked_bake(path, outdir, params, progress, report, label)
+    finally:
+        _remove_empty(created)  # what a failed or interrupted bake created (a whole result is never empty)
+
+
+def _locked_bake(path: Path, outdir: Path, params: BakeParams, progress: Progress, report: Report[BakeStats],
+                 label: str) -> Report[BakeStats]:
+    ext = layer_extension(path, params)
+    names = planned_outputs(path, params, ext)
+    _check_outputs(path, outdir, names)
+    recover(outdir, [label, *names], report.warnings)
+    report.warnings += _legacy_staging(outdir)
+    commit: Commit | None = None
+    try:
         commit = Commit(outdir, label)
         assert commit.staging is not None  # a new Commit's staging directory, until it commits or is discarded
-    except BaseException:
-        _remove_empty(created)
-        raise
-    try:
         source, copied = path, []
         if params.portable:
             from foliage_tools.scene.portable import write_portable_input
@@ -155,8 +161,8 @@ def run_bake(path: Path, outdir: Path, params: BakeParams, *, progress: Progress
         _name_the_input(stages, commit.staging, path)
         moved = _commit(path, outdir, commit, portable_input=source if params.portable else None)
     except BaseException:
-        commit.discard()
-        _remove_empty(created)
+        if commit is not None:
+            commit.discard()
         raise
     final = moved[f"{Path(path).stem}.lb.{ext}"]
     for r in stages.values():

@@ -147,7 +147,11 @@ def run_batch(assets: list[Asset], outroot: Path, params: BatchParams, *, progre
     if todo:
         counts.queued = len(todo)
         progress.update(counts)  # before the cluster starts, which takes seconds
-        _bake_all(todo, outroot, params, record, counts, progress, report)
+        try:
+            _bake_all(todo, outroot, params, record, counts, progress, report)
+        except BaseException:
+            _tidy(todo, outroot)
+            raise
     write_record(outroot, record)
     progress.update(counts)
     for p in plans:
@@ -202,6 +206,24 @@ def _bake_all(todo: list[_Plan], outroot: Path, params: BatchParams, record: dic
         except BaseException:
             client.cancel(list(pending), force=True)
             raise
+
+
+def _tidy(todo: list[_Plan], outroot: Path) -> None:
+    """After an interrupted batch (its cluster closed): what its killed tasks left in OUTROOT/<name>/ is removed.
+
+    A worker killed outright (SIGTERM to the batch's process group, SIGKILL) cannot remove its bake's staging
+    folder; its process is gone once the cluster is closed, so the staging folder is a dead run's, which
+    ``atomic.recover`` removes (or finishes, had its commit begun), as the next bake of the asset would.
+    """
+    from foliage_tools.scene.atomic import recover
+
+    for p in todo:
+        outdir = outroot / p.asset.name
+        try:
+            recover(outdir, [f"{Path(p.asset.path).stem}.bake"], [])
+            outdir.rmdir()  # only if the bake left it empty
+        except (FoliageError, OSError):
+            pass
 
 
 def _entry(p: _Plan, fut, outroot: Path, attempts: int) -> dict:

@@ -6,7 +6,11 @@ output directory itself, ``.LABEL.tmp-PID-TOKEN`` (beside the outputs, so the
 final renames never cross a device: an output directory that is a mount point
 works). When every file is complete, :meth:`Commit.commit`
 
-1. refuses, before anything moves, a final name that is a directory;
+0. checks that every staged file is whole (:func:`check_written`: not cut at
+   the file-size limit, and read back as what its extension says);
+1. refuses, before anything moves, a final name that is a directory, and
+   starts no commit once the run has been interrupted
+   (``foliage_tools.interrupts``);
 2. writes a journal (``.commit``, the list of names) into the staging
    directory: from then on the new result is the result;
 3. renames the files into place, grids before the layers that refer to them,
@@ -20,9 +24,12 @@ every grid file and upstream layer they were written with (``scene.integrity``),
 so ``validate`` and every stage reading the result refuse the mix and name the
 stale file; and the journal lets the next run on the same output finish the
 renames (:func:`recover`), which also removes the staging directories of
-runs that died before step 2. Commits into one directory are serialised by a
-lock on the directory, so two concurrent writers of one output cannot
-interleave their renames.
+runs that died before step 2. Recovery follows only what a commit writes
+(:func:`staged_names`: plain file names, no symbolic links), so a planted
+journal cannot move anything else. Commits into one directory are serialised
+by a lock on the directory, so two concurrent writers of one output cannot
+interleave their renames; :func:`run_lock` keeps a second run off a result
+for the whole of the first (``bake``).
 
 Test hook: :data:`before_rename` (a callable) and the environment variable
 ``FOLIAGE_TEST_KILL_AT_RENAME=N[:SIGNAL]`` (the process sends itself SIGNAL,
@@ -40,10 +47,12 @@ import fcntl
 import hashlib
 import os
 import re
+import resource
 import secrets
 import shutil
 import signal
 import socket
+import stat
 import tempfile
 import threading
 import time
@@ -52,6 +61,7 @@ from types import FrameType
 from typing import Any, Callable, Iterable, Iterator
 
 from foliage_tools.errors import OutputError
+from foliage_tools.interrupts import INTERRUPT_SIGNALS, interrupt_noted
 
 JOURNAL = ".commit"
 """In a staging directory: the names to move into place, one a line, in order (present = committed)."""
@@ -61,9 +71,6 @@ KILL_ENV = "FOLIAGE_TEST_KILL_AT_RENAME"
 
 #: Test hook: called as ``before_rename(index, staged_path, final_path)`` before each rename of a commit.
 before_rename: Callable[[int, Path, Path], None] | None = None
-
-#: Signals that interrupt a run (the CLI maps them to exit 130); held back during the renames.
-INTERRUPT_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 #: How long a commit waits for another run's commit into the same directory (seconds; commits take milliseconds).
 LOCK_TIMEOUT = 60.0
@@ -131,17 +138,8 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def _owner_alive(staging: Path, pid: int) -> bool:
-    """Whether the run that made ``staging`` may still be running (a run on another host counts as alive)."""
-    try:
-        host, _ = (staging / OWNER).read_text(encoding="utf-8").split()
-    except (OSError, ValueError):
-        host = socket.gethostname()
-    return host != socket.gethostname() or _alive(pid)
-
-
 @contextlib.contextmanager
-def _interrupts_held() -> Iterator[None]:
+def _interrupts_held() -> Iterator[list[tuple[int, FrameType | None]]]:
     """Hold SIGINT/SIGTERM/SIGHUP back; one that arrived meanwhile is handled (and raises) when the block ends.
 
     Done at Python level, by swapping the handlers: blocking the signals in
@@ -151,10 +149,10 @@ def _interrupts_held() -> Iterator[None]:
     action, ignored) are left as they are; only the main thread can swap
     handlers, so elsewhere nothing is held back.
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     caught: list[tuple[int, FrameType | None]] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield caught
+        return
     previous: dict[int, Callable[[int, FrameType | None], Any]] = {}
     for sig in INTERRUPT_SIGNALS:
         handler = signal.getsignal(sig)
@@ -162,7 +160,7 @@ def _interrupts_held() -> Iterator[None]:
             previous[sig] = handler
             signal.signal(sig, lambda signum, frame: caught.append((signum, frame)))
     try:
-        yield
+        yield caught
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
@@ -197,6 +195,78 @@ def _directory_lock(directory: Path) -> Iterator[None]:
         yield
     finally:
         os.close(fd)
+
+
+LOCK_SUFFIX = ".lock"
+"""``.LABEL.lock`` in an output directory: held by the one run writing the result LABEL there (:func:`run_lock`)."""
+
+
+@contextlib.contextmanager
+def run_lock(directory: Path, label: str) -> Iterator[None]:
+    """Hold the result ``label`` in ``directory`` for one run, from its checks to its commit; refuse a second.
+
+    A second run writing the same result into the same directory at the same
+    time is refused at once (:class:`OutputError`, exit 2, naming the run that
+    holds it), not made to wait: its result would replace the first one's, so
+    two pipeline steps writing one output is a mistake to fix, and a step that
+    waited silently could wait for hours. Results of other names in the same
+    directory do not wait for each other. The lock is ``flock`` on
+    ``.LABEL.lock``, removed when the run ends (the kernel drops the lock of
+    a killed run; its file is then reused). Where the filesystem has no
+    ``flock``, nothing is locked.
+    """
+    path = Path(directory) / f".{staging_label(label)}{LOCK_SUFFIX}"
+    fd, made, locked = -1, False, False
+    try:  # one try from the first open on: an interrupt anywhere in here leaves no lock file of this run's behind
+        while True:
+            try:
+                try:
+                    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
+                    made = True
+                except FileExistsError:
+                    fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
+            except OSError as exc:
+                if exc.errno == errno.ELOOP:
+                    raise OutputError(f"@{path}@ is a symbolic link, where this run keeps its lock; a foliage run "
+                                      f"never makes one: remove it (rm '{path}') and run the command again.") from None
+                if exc.errno == errno.ENOENT:  # removed between the two opens by the run that held it: again
+                    continue
+                break  # an unwritable directory: the run's own checks say so
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                made = False  # another run locked it, even if this one created it: it is that run's to remove
+                try:
+                    owner = os.read(fd, 256).decode("utf-8", "replace").split()
+                except OSError:
+                    owner = []
+                who = f"process {owner[1]} on {owner[0]}" if len(owner) == 2 else "another process"
+                raise OutputError(
+                    f"@{Path(directory) / label}@: another foliage run ({who}) is writing this result into {directory} "
+                    "now; wait for it to finish, or write into another directory. Nothing was written.") from None
+            except OSError:  # e.g. NFS without flock: nothing is locked
+                break
+            locked = True
+            try:  # the run that held it may have removed the file meanwhile (and a third locked a new one): again
+                same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            locked = made = False
+            os.close(fd)
+            fd = -1
+        if locked:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, 0)
+                os.write(fd, f"{socket.gethostname()} {os.getpid()}\n".encode())
+        yield
+    finally:
+        if locked or made:
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+        if fd >= 0:
+            os.close(fd)
 
 
 def _fsync(path: Path, directory: bool = False) -> None:
@@ -244,6 +314,82 @@ def _move(directory: Path, staging: Path, names: list[str]) -> list[Path]:
     return done
 
 
+def file_size_limit() -> int | None:
+    """This process's file-size limit in bytes (``ulimit -f``, RLIMIT_FSIZE); None when there is none."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    return None if soft == resource.RLIM_INFINITY else int(soft)
+
+
+def _size_limit_error(final: Path, size: int | None = None) -> OutputError:
+    limit = file_size_limit()
+    cut = f"was cut at {size:,} bytes: " if size is not None else "cannot be written whole: "
+    what = f"{limit:,} bytes" if limit is not None else "set"
+    return OutputError(
+        f"@{final}@ {cut}the file-size limit of this process (ulimit -f, RLIMIT_FSIZE) is {what}. Raise it "
+        "(`ulimit -f unlimited`) or write a smaller result, and run the command again. Nothing was written: an earlier "
+        "result there is left as it was."
+    )
+
+
+def _read_back(path: Path) -> str | None:
+    """Why the file at ``path`` does not read back whole as what its extension says (None: it does)."""
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".vdb":
+            from foliage_tools.scene.vdb import unreadable_grids
+
+            return unreadable_grids(path)
+        if suffix in (".usda", ".usdc", ".usd"):
+            from pxr import Sdf
+
+            if Sdf.Layer.OpenAsAnonymous(str(path)) is None:
+                return "USD cannot open it"
+        elif suffix in (".png", ".exr"):
+            import OpenImageIO as oiio
+
+            inp = oiio.ImageInput.open(str(path))
+            if inp is None:
+                return oiio.geterror() or "not an image"
+            try:
+                if inp.read_image() is None:
+                    return inp.geterror() or "its pixels cannot be read"
+            finally:
+                inp.close()
+        elif suffix == ".json":
+            import json
+
+            json.loads(path.read_text(encoding="utf-8"))
+    except Exception as exc:  # the readers raise assorted types for a cut file
+        return _short(exc)
+    return None
+
+
+def check_written(path: Path, final: Path) -> None:
+    """Before a commit: the file staged at ``path`` (for ``final``) is whole.
+
+    A write past the file-size limit (``ulimit -f``) fails with EFBIG (Python
+    ignores SIGXFSZ), which OpenVDB's and OpenImageIO's writers do not all
+    report: the file is then exactly as long as the limit. A file that long,
+    or one that does not read back as what its extension says (a ``.vdb``
+    whose grids all read, a layer USD opens, an image whose pixels read), is
+    refused (:class:`OutputError`), so it never replaces an earlier result.
+    """
+    st = os.lstat(path)
+    if not stat.S_ISREG(st.st_mode):
+        raise OutputError(f"@{final}@: what was staged for it is not a regular file (a symbolic link?); nothing was written.")
+    size = st.st_size
+    limit = file_size_limit()
+    if limit is not None and size >= limit:
+        raise _size_limit_error(final, size)
+    problem = _read_back(path)
+    if problem is not None:
+        raise OutputError(
+            f"@{final}@: the file just written does not read back whole ({problem}), so it was not moved into place: "
+            "check the disk and the limits of this process (`ulimit -a`) and run the command again. Nothing was "
+            "written: an earlier result there is left as it was."
+        )
+
+
 class Commit:
     """Files that become visible together in ``directory`` (module docstring).
 
@@ -259,6 +405,9 @@ class Commit:
         try:
             self.staging.mkdir()
             (self.staging / OWNER).write_text(f"{socket.gethostname()} {os.getpid()}\n", encoding="utf-8")
+        except KeyboardInterrupt:  # nobody else will remove it: the caller never gets this Commit
+            shutil.rmtree(self.staging, ignore_errors=True)
+            raise
         except OSError as exc:
             shutil.rmtree(self.staging, ignore_errors=True)
             raise OutputError(
@@ -280,7 +429,8 @@ class Commit:
     def files(self) -> list[str]:
         """The names staged so far (hidden entries are the commit's own)."""
         assert self.staging is not None, "the commit is already done or discarded"
-        return sorted(p.name for p in self.staging.iterdir() if not p.name.startswith(".") and p.is_file())
+        return sorted(p.name for p in self.staging.iterdir()
+                      if not p.name.startswith(".") and stat.S_ISREG(os.lstat(p).st_mode))
 
     def commit(self, names: Iterable[str]) -> list[Path]:
         """Move ``names`` into place together (module docstring, steps 1-4); the final paths, in order."""
@@ -292,16 +442,28 @@ class Commit:
             raise ValueError(f"not staged: {missing}")
         for n in names:
             _fsync(staging / n)
+        # a commit into another result's staging directory (a bake's stage) names the file by its final place
+        where = self.directory.parent if _STAGING.fullmatch(self.directory.name) else self.directory
+        for n in names:
+            check_written(staging / n, where / n)
         try:
             return self._commit(names)
         except KeyboardInterrupt as exc:
-            if self.committed is not None and not isinstance(exc, InterruptedAfterCommit):
+            # a commit into another result's staging directory (a bake's stage) is not a result anyone sees: the
+            # enclosing run removes it, so its interrupt is a plain one
+            visible = not _STAGING.fullmatch(self.directory.name)
+            if visible and self.committed is not None and not isinstance(exc, InterruptedAfterCommit):
                 raise InterruptedAfterCommit(self.committed) from None
             raise
 
     def _commit(self, names: list[str]) -> list[Path]:
         assert self.staging is not None, "the commit is already done or discarded"
-        with _directory_lock(self.directory), _interrupts_held():
+        with _directory_lock(self.directory), _interrupts_held() as caught:
+            noted = caught[0][0] if caught else interrupt_noted()
+            if noted is not None:
+                # the run was interrupted (its KeyboardInterrupt may have been lost on the way, in a library's
+                # callback or cleanup): nothing is committed after that
+                raise KeyboardInterrupt(signal.Signals(noted).name)
             for n in names:
                 final = self.directory / n
                 if final.is_dir() and not final.is_symlink():
@@ -375,6 +537,8 @@ def atomic_outputs(paths: list[Path]) -> Iterator[dict[Path, Path]]:
     except OutputError:
         raise
     except Exception as exc:
+        if isinstance(exc, OSError) and exc.errno == errno.EFBIG:
+            raise _size_limit_error(Path(exc.filename) if exc.filename else paths[-1]) from None
         if commit.staging is not None and _disk_full(commit.staging, exc):
             raise OutputError(
                 f"@{paths[-1]}@: the disk holding {directory} is full ({_short(exc)}); free some space or choose another "
@@ -389,6 +553,83 @@ def atomic_outputs(paths: list[Path]) -> Iterator[dict[Path, Path]]:
         commit.discard()
 
 
+def _plain_name(name: str) -> bool:
+    """A name a commit can stage: one path component (no ``/``, neither ``.`` nor ``..``, no NUL), and none of the
+    names this module keeps for itself (the journal, the owner, staging folders, locks). An output named with a
+    leading dot (``-o .x.usda``) is a plain name too: it stays inside the directory like any other."""
+    if not name or "/" in name or "\0" in name or name in (".", ".."):
+        return False
+    return name not in (JOURNAL, JOURNAL + ".tmp", OWNER) and not _STAGING.fullmatch(name) and not name.endswith(LOCK_SUFFIX)
+
+
+def _refuse(staging: Path, why: str) -> OutputError:
+    return OutputError(
+        f"@{staging}@ looks like a foliage staging folder, but {why}; a foliage run never leaves that, so nothing "
+        f"was moved or removed. Look at what it holds, then remove it (rm -r '{staging}') and run the command again."
+    )
+
+
+def _lstat(path: Path) -> os.stat_result | None:
+    try:
+        return os.lstat(path)
+    except FileNotFoundError:
+        return None
+
+
+def staged_names(staging: Path) -> list[str] | None:
+    """The names the journal of ``staging`` lists (None: no journal, the run died before its commit).
+
+    Only what a commit writes is accepted (:class:`OutputError` otherwise,
+    naming the folder): ``staging`` a real directory (not a symbolic link),
+    its journal a regular file, each name in it a plain file name (no ``/``,
+    not hidden, so no ``..``) and each staged file still there a regular
+    file. A recovery that follows it then only moves files the journal's own
+    run staged, to names in the directory that holds ``staging``.
+    """
+    st = _lstat(staging)
+    if st is None:
+        return None
+    if not stat.S_ISDIR(st.st_mode):
+        raise _refuse(staging, "it is a symbolic link or not a directory")
+    journal = staging / JOURNAL
+    jst = _lstat(journal)
+    if jst is None:
+        return None
+    if not stat.S_ISREG(jst.st_mode):
+        raise _refuse(staging, f"its journal {JOURNAL} is not a regular file")
+    try:
+        text = journal.read_text(encoding="utf-8")
+    except FileNotFoundError:  # its run finished meanwhile
+        return None
+    except UnicodeDecodeError:
+        raise _refuse(staging, f"its journal {JOURNAL} is not text") from None
+    except OSError as exc:
+        raise _refuse(staging, f"its journal {JOURNAL} cannot be read ({exc.strerror})") from None
+    names = [n for n in text.split("\n") if n]
+    for n in names:
+        if not _plain_name(n):
+            raise _refuse(staging, f"its journal names {n!r}, which is not a file name inside {staging.parent}")
+        nst = _lstat(staging / n)
+        if nst is not None and not stat.S_ISREG(nst.st_mode):
+            raise _refuse(staging, f"its {n!r} is a symbolic link or not a regular file")
+    return names
+
+
+def _owner(staging: Path) -> tuple[str, int | None]:
+    """(host, pid) of the run that made ``staging`` as its ``.owner`` says; this host and None where it says nothing."""
+    path = staging / OWNER
+    st = _lstat(path)
+    if st is None:
+        return socket.gethostname(), None
+    if not stat.S_ISREG(st.st_mode):
+        raise _refuse(staging, f"its {OWNER} is a symbolic link or not a regular file")
+    try:
+        host, pid = path.read_text(encoding="utf-8").split()
+        return host, int(pid)
+    except (OSError, ValueError):
+        return socket.gethostname(), None
+
+
 def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
     """Finish or remove what killed runs left behind for the outputs ``names`` in ``directory``.
 
@@ -396,7 +637,11 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
     finished if it holds a journal (its result was committed: the remaining
     renames are done) and removed otherwise; so are the ``.STEM.tmp-PID.EXT``
     temporaries of earlier versions. Each action is noted in ``warnings``.
-    Runs still alive are left alone.
+    Runs still alive are left alone, and so are the staging directories of
+    runs on another host (this host cannot tell whether they are alive), with
+    a warning naming the host. Only what :func:`staged_names` accepts is
+    followed: anything else is refused (:class:`OutputError`) before anything
+    moves.
     """
     directory = Path(directory)
     names = list(names)
@@ -408,28 +653,45 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
     except OSError:
         return
     stale = []
+    here = socket.gethostname()
     for entry in entries:
         m = _STAGING.fullmatch(entry.name)
-        if m and m["label"] in labels and entry.is_dir():
-            if not _owner_alive(entry, int(m["pid"])):
-                stale.append((entry, int(m["pid"])))
-        elif (lm := legacy.fullmatch(entry.name)) and entry.is_file():
+        st = _lstat(entry)
+        if st is None:
+            continue
+        if m and m["label"] in labels:
+            staged_names(entry)  # refuses a symbolic link, a planted journal, ... whoever it claims to be
+            if not stat.S_ISDIR(st.st_mode):
+                continue
+            host, _ = _owner(entry)
+            pid = int(m["pid"])
+            if host != here:
+                warnings.append(
+                    f"@{entry}@ was left by a foliage run on the host {host} (process {pid}), which this host cannot "
+                    f"check, so it is left as it is; once no foliage run on {host} writes into {directory}, remove it "
+                    f"(rm -r '{entry}').")
+            elif not _alive(pid):
+                stale.append((entry, pid))
+        elif (lm := legacy.fullmatch(entry.name)) and stat.S_ISREG(st.st_mode):
             pid = int(lm["pid"])
             if not _alive(pid):
                 stale.append((entry, pid))
+        elif entry.name.endswith(LOCK_SUFFIX) and entry.name[1:-len(LOCK_SUFFIX)] in labels and stat.S_ISREG(st.st_mode):
+            _remove_stale_lock(entry)
     if not stale:
         return
     with _directory_lock(directory), _interrupts_held():
         for entry, pid in stale:
-            if not entry.exists():  # another run cleaned it meanwhile
+            st = _lstat(entry)
+            if st is None:  # another run cleaned it meanwhile
                 continue
-            if entry.is_file():
+            if stat.S_ISREG(st.st_mode):
                 entry.unlink(missing_ok=True)
                 warnings.append(f"removed @{entry}@, a temporary file left by an interrupted run (process {pid}).")
                 continue
-            journal = entry / JOURNAL
-            if journal.is_file():
-                todo = [n for n in journal.read_text(encoding="utf-8").split("\n") if n and (entry / n).is_file()]
+            journal = staged_names(entry)  # again, under the lock: what is moved is what was checked
+            if journal is not None:
+                todo = [n for n in journal if _lstat(entry / n) is not None]
                 try:
                     for n in todo:
                         os.replace(entry / n, directory / n)
@@ -447,18 +709,38 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
             shutil.rmtree(entry, ignore_errors=True)
 
 
+def _remove_stale_lock(path: Path) -> None:
+    """Remove a :func:`run_lock` file that no run holds (its run was killed); one held is left alone."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino:
+            os.unlink(path)
+    except OSError:  # held (BlockingIOError), gone, or no flock here
+        pass
+    finally:
+        os.close(fd)
+
+
 def pending_commits(directory: Path) -> list[tuple[Path, list[str]]]:
-    """Staging directories in ``directory`` that hold a journal: commits a killed run did not finish, and their names."""
+    """Staging directories in ``directory`` that hold a journal: commits a killed run did not finish, and their names.
+
+    Only journals :func:`staged_names` accepts are listed (this only reads; :func:`recover` refuses the others).
+    """
     out: list[tuple[Path, list[str]]] = []
     try:
         entries = list(Path(directory).iterdir())
     except OSError:
         return out
     for entry in entries:
-        if _STAGING.fullmatch(entry.name) and (entry / JOURNAL).is_file():
+        if _STAGING.fullmatch(entry.name):
             try:
-                names = [n for n in (entry / JOURNAL).read_text(encoding="utf-8").split("\n") if n]
-            except OSError:
+                names = staged_names(entry)
+            except (OutputError, OSError):
                 continue
-            out.append((entry, names))
+            if names is not None:
+                out.append((entry, names))
     return out

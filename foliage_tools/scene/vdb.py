@@ -124,6 +124,20 @@ def write_vdb(path: Path, grids: list[Grid], *, metadata: dict | None = None, ca
     _openvdb().write(str(path), grids=written, metadata=dict(metadata or {}))
 
 
+def unreadable_grids(path: Path) -> str | None:
+    """Why a ``.vdb`` just written does not read back whole (None: every grid reads), one grid in memory at a time.
+
+    A file cut short (a file-size limit, a full disk that the writer did not report) still lists its grids; reading
+    each one finds the cut."""
+    try:
+        names = [g.name for g in _openvdb().readAllGridMetadata(str(path))]
+        for name in names:
+            _openvdb().read(str(path), name)
+    except Exception as exc:  # pyopenvdb raises assorted types for corrupt files
+        return f"not a whole OpenVDB file: {exc}"
+    return None
+
+
 def _read_raw(path: Path, name: str):
     """One grid of a file as pyopenvdb holds it, with its class set by name; :class:`InputError` if unreadable."""
     if name not in grid_names(path):

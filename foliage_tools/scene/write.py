@@ -200,8 +200,15 @@ def _refuse_a_siblings_grids(out: Path, grid_name: re.Pattern) -> None:
             f"another output name, or remove @{siblings[0]}@ and its grids first.")
 
 
-def _relative(target: Path, start_dir: Path) -> str:
-    rel = os.path.relpath(Path(target).resolve(), start_dir.resolve())
+def _relative(target: Path, start_dir: Path, *, own_name: bool = False) -> str:
+    """``target`` relative to ``start_dir`` (``./x`` or ``../x``), symbolic links resolved.
+
+    ``own_name``: a symbolic link at ``target`` itself is not followed (the folders above it are). An output is
+    named so: the commit replaces a link at an output's name by the file itself, so the link's target is neither
+    written nor named (an input keeps its resolved path: its own relative asset paths hold from there)."""
+    target = Path(target)
+    where = target.parent.resolve() / target.name if own_name else target.resolve()
+    rel = os.path.relpath(where, start_dir.resolve())
     return rel if rel.startswith(".") else f"./{rel}"
 
 
@@ -339,7 +346,7 @@ def _author(stage: Usd.Stage, edits: LayerEdits, out: Path, carried: dict[str, l
         lo = np.min([np.asarray(g.origin) for g in vol.grids], axis=0)
         hi = np.max([np.asarray(g.origin) + np.asarray(g.values.shape[:3]) * g.voxel_size for g in vol.grids], axis=0)
         volume.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))
-        rel_file = _relative(vol.vdb_file, out.parent)
+        rel_file = _relative(vol.vdb_file, out.parent, own_name=True)
         fields = []
         for g in vol.grids:
             field_path = Sdf.Path(vol.path).AppendChild(g.name)

@@ -10,13 +10,17 @@ saying so, where the machine does not allow it.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
+import random
 import shutil
 import signal
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -287,3 +291,160 @@ def test_a_file_name_too_long_is_exit_2_before_any_work(tmp_path, simple_tree):
     assert r.returncode == 2 and "file name is 305 bytes long" in r.stderr, r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tree.usda"]
     assert digest(simple_tree)  # the input is still there and readable
+
+
+# --- the fault sweep: a bake stopped anywhere is the old result or the new one, and the next run is clean -------
+
+MINIMAL = Path(__file__).resolve().parents[1] / "corpus" / "clean" / "minimal_tree.usda"
+FAST = ("--resolution", "8", "--gather", "16", "--direct-samples", "16")
+MINIMAL_FILES = sorted(f"tree.{n}" for n in
+                       ("density.usda", "density.vdb", "smax.usda", "spp.usda", "spp.vdb", "lb.usda", "lb.vdb", "png"))
+OLD_SUN, NEW_SUN = "30,50", "200,40"
+#: Words of the bake's progress lines on stderr, one or more per stage (``writing`` is each stage's commit).
+STAGE_WORDS = ("direct sunlight", "voxelizing", "writing", "s_max for", "SPP/SPPG", "final gather",
+               "lattice-Boltzmann", "rendering")
+
+
+@dataclasses.dataclass(frozen=True)
+class Fault:
+    """Where a bake is stopped: a signal just before rename ``rename`` of its commit (the commit's test hook), or
+    ``delay`` s after the ``nth`` progress line holding ``after`` (None: ``delay`` s after the process started)."""
+
+    sig: str
+    rename: int | None = None
+    after: str | None = None
+    nth: int = 1
+    delay: float = 0.0
+
+    def __str__(self) -> str:
+        if self.rename is not None:
+            return f"{self.sig}-at-rename-{self.rename}"
+        where = "start" if self.after is None else f"{self.after.replace(' ', '_').replace('/', '_')}#{self.nth}"
+        return f"{self.sig}-{self.delay:.2f}s-after-{where}"
+
+
+def sweep(seed: int, signals: int) -> list[Fault]:
+    """Every rename of the commit, killed (SIGKILL) and signalled (SIGTERM), and ``signals`` interrupts at times drawn
+    from ``seed``: a stage's progress line (the 1st to 4th commit for ``writing``) plus up to 0.3 s, or up to 1.5 s
+    after the start (the imports)."""
+    rng = random.Random(seed)
+    faults = [Fault(sig, rename=i) for i in range(len(MINIMAL_FILES)) for sig in ("KILL", "TERM")]
+    for _ in range(signals):
+        after = rng.choice([None, *STAGE_WORDS])
+        faults.append(Fault(rng.choice(["INT", "TERM", "HUP"]), after=after,
+                            nth=rng.randint(1, 4) if after == "writing" else 1,
+                            delay=round(rng.uniform(0.0, 1.5 if after is None else 0.3), 2)))
+    return faults
+
+
+#: The default suite's points: the first, a middle and the last rename killed, one held signal, and signals in the
+#: imports, in pyopenvdb's first import (0.05 s after the first "writing"), in each kind of stage and in the preview.
+REPRESENTATIVE = [
+    Fault("KILL", rename=0), Fault("KILL", rename=4), Fault("KILL", rename=len(MINIMAL_FILES) - 1),
+    Fault("TERM", rename=3),
+    Fault("INT", delay=0.15),
+    Fault("TERM", after="writing", delay=0.05),
+    Fault("HUP", after="voxelizing", delay=0.1),
+    Fault("INT", after="writing", nth=3, delay=0.0),
+    Fault("TERM", after="lattice-Boltzmann", delay=0.1),
+    Fault("TERM", after="rendering", delay=0.2),
+]
+
+
+@pytest.fixture(scope="module")
+def old_bake(tmp_path_factory) -> tuple[Path, Path, dict[str, str]]:
+    """The input, a finished bake of it (the old result, to copy before each fault) and its files' digests."""
+    base = tmp_path_factory.mktemp("sweep")
+    tree = base / "tree.usda"
+    tree.write_bytes(MINIMAL.read_bytes())
+    template = base / "old" / "out"
+    template.parent.mkdir()
+    r = foliage("bake", tree, "-o", template, *FAST, "--sun", OLD_SUN)
+    assert r.returncode == 0, r.stderr
+    assert sorted(visible(template)) == MINIMAL_FILES
+    return tree, template, visible(template)
+
+
+def _stop_bake(fault: Fault, tree: Path, out: Path) -> tuple[int, str, bool]:
+    """Run the new bake into ``out`` and stop it at ``fault``; its exit code, its stderr and whether it was still running
+    when signalled (a run that ended first cannot be interrupted)."""
+    env = dict(os.environ, XDG_CACHE_HOME=str(Path(tempfile.gettempdir()) / "foliage-test-cache"))
+    if fault.rename is not None:
+        env[atomic.KILL_ENV] = f"{fault.rename}:{fault.sig}"
+    proc = subprocess.Popen([sys.executable, "-m", "foliage_tools", "bake", str(tree), "-o", str(out), *FAST,
+                             "--sun", NEW_SUN], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    lines: list[str] = []
+    seen = threading.Event()
+
+    def read() -> None:
+        count = 0
+        for line in proc.stderr:
+            lines.append(line)
+            if fault.after is not None and fault.after in line:
+                count += 1
+                if count == fault.nth:
+                    seen.set()
+        seen.set()  # stderr ended: the run is over
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    alive = True
+    try:
+        if fault.rename is None:
+            if fault.after is not None:
+                assert seen.wait(timeout=240), f"{fault}: no progress line with {fault.after!r}"
+            time.sleep(fault.delay)  # the fault's own time: where in the run the signal lands
+            alive = proc.poll() is None
+            if alive:
+                proc.send_signal(getattr(signal, f"SIG{fault.sig}"))
+        proc.wait(timeout=240)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    reader.join(timeout=30)
+    proc.stderr.close()
+    return proc.returncode, "".join(lines), alive
+
+
+def _is_new(out: Path, old: dict[str, str]) -> bool:
+    """The whole new bake: every file there and none of them the old one's, and every layer's record of the files
+    below it holds (so no file of another run is among them)."""
+    state = visible(out)
+    return (sorted(state) == MINIMAL_FILES and all(state[n] != old[n] for n in MINIMAL_FILES)
+            and check_layers(out / n for n in MINIMAL_FILES) == [])
+
+
+def _check_fault(fault: Fault, old_bake, where: Path, *, next_run: bool) -> None:
+    tree, template, old = old_bake
+    out = where / "out"
+    shutil.copytree(template, out)
+    code, err, alive = _stop_bake(fault, tree, out)
+    state = visible(out)
+    if fault.sig == "KILL":  # no process can react to SIGKILL: a mix is possible, and refused
+        assert code == -signal.SIGKILL, err
+        if state != old and not _is_new(out, old):
+            assert check_layers(out / n for n in state), f"{fault}: a mix nothing refuses"
+    else:
+        assert "Traceback" not in err and "internal error" not in err, f"{fault}:\n{err[-3000:]}"
+        assert code == 130 or (code == 0 and not alive), f"{fault}: exit {code}\n{err[-3000:]}"
+        assert state == old or _is_new(out, old), f"{fault}: neither the old bake nor the new one: {sorted(state)}"
+        assert hidden(out) == [], f"{fault}: left {hidden(out)}"
+        if fault.rename is not None:  # held until the renames were done: the new result, whole
+            assert code == 130 and _is_new(out, old) and "just after the outputs were written" in err, err
+    assert sorted(p.name for p in where.iterdir()) == ["out"], f"{fault}: wrote beside OUTDIR"
+    if next_run or fault.sig == "KILL":
+        r = foliage("bake", tree, "-o", out, *FAST, "--sun", NEW_SUN)
+        assert r.returncode == 0, f"{fault}: the next run failed\n{r.stderr}"
+        assert _is_new(out, old) and hidden(out) == [], f"{fault}: the next run left {hidden(out)}"
+
+
+@pytest.mark.parametrize("fault", REPRESENTATIVE, ids=str)
+def test_a_bake_stopped_at_a_representative_point_is_old_or_new_and_the_next_run_is_clean(old_bake, tmp_path, fault):
+    _check_fault(fault, old_bake, tmp_path, next_run=False)
+
+
+@pytest.mark.slow  # ~36 bakes stopped and as many run again: ~8 min on 2 cores
+@pytest.mark.parametrize("fault", sweep(seed=40, signals=20), ids=str)
+def test_a_bake_stopped_anywhere_is_old_or_new_and_the_next_run_is_clean(old_bake, tmp_path, fault):
+    _check_fault(fault, old_bake, tmp_path, next_run=True)

@@ -128,7 +128,7 @@ def test_commits_into_one_directory_are_serialised(tmp_path, monkeypatch):
     fcntl.flock(fd, fcntl.LOCK_EX)
     try:
         with pytest.raises(OutputError, match="another run"):
-            with atomic.atomic_outputs([tmp_path / "a.vdb", tmp_path / "a.usda"]) as temps:
+            with atomic.atomic_outputs([tmp_path / "a.bin", tmp_path / "a.txt"]) as temps:
                 for t in temps.values():
                     t.write_text("x")
     finally:
@@ -137,12 +137,12 @@ def test_commits_into_one_directory_are_serialised(tmp_path, monkeypatch):
 
 
 def test_an_output_name_taken_by_a_directory_is_refused_before_anything_moves(tmp_path):
-    (tmp_path / "a.usda").mkdir()
-    with pytest.raises(OutputError, match=r"a\.usda@ is a directory"):
-        with atomic.atomic_outputs([tmp_path / "a.vdb", tmp_path / "a.usda"]) as temps:
+    (tmp_path / "a.txt").mkdir()
+    with pytest.raises(OutputError, match=r"a\.txt@ is a directory"):
+        with atomic.atomic_outputs([tmp_path / "a.bin", tmp_path / "a.txt"]) as temps:
             for t in temps.values():
                 t.write_text("x")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.usda"]  # no a.vdb, no temporaries
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]  # no a.vdb, no temporaries
 
 
 def test_an_interrupt_during_the_renames_waits_until_the_result_is_whole(tmp_path):
@@ -150,18 +150,18 @@ def test_an_interrupt_during_the_renames_waits_until_the_result_is_whole(tmp_pat
     atomic.before_rename = lambda index, staged, final: os.kill(os.getpid(), signal.SIGTERM) if index == 0 else None
     try:
         with pytest.raises(atomic.InterruptedAfterCommit) as info:
-            with atomic.atomic_outputs([tmp_path / "a.vdb", tmp_path / "a.usda"]) as temps:
+            with atomic.atomic_outputs([tmp_path / "a.bin", tmp_path / "a.txt"]) as temps:
                 for t in temps.values():
                     t.write_text(t.name)
     finally:
         atomic.before_rename = None
         signal.signal(signal.SIGTERM, previous)
-    assert info.value.paths == [tmp_path / "a.vdb", tmp_path / "a.usda"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.usda", "a.vdb"]
+    assert info.value.paths == [tmp_path / "a.bin", tmp_path / "a.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bin", "a.txt"]
 
 
 def test_a_long_output_name_gets_a_staging_directory_that_fits(tmp_path):
-    name = "x" * 240 + ".usda"  # valid (NAME_MAX 255), but .NAME.tmp-PID-TOKEN would not be
+    name = "x" * 240 + ".txt"  # valid (NAME_MAX 255), but .NAME.tmp-PID-TOKEN would not be
     with atomic.atomic_outputs([tmp_path / name]) as temps:
         temps[tmp_path / name].write_text("x")
     assert [p.name for p in tmp_path.iterdir()] == [name]
