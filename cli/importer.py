@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 @click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path, dir_okay=False),
               callback=check_output_name, help="Output USD layer (.usda/.usdc) holding the tree asset.")
 @click.option("--up-axis", type=click.Choice(["auto", "Y", "Z"], case_sensitive=False), default="auto", show_default=True,
-              help="The model's up axis, written as upAxis (not rotated); auto: from the trunk.")
+              help="Up axis to write as upAxis; auto: from the trunk.")
 @click.option("--meters-per-unit", type=float, default=1.0, show_default=True,
               help="Metres per model unit (0.01 for centimetres).")
 @click.option("--leaves", "leaf_pattern", default=None, metavar="REGEX",
