@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from foliage_tools.errors import UsageError
+from foliage_tools.geometry import upright
 from foliage_tools.pipeline.report import Progress, Report, Silent
 from foliage_tools.scene.meshfile import CleanOptions
 from foliage_tools.pipeline.stats import ImportStats
@@ -27,51 +28,17 @@ from foliage_tools.pipeline.stats import ImportStats
 DEFAULT_LEAF_PATTERN = r"leaf|leaves|foliage|needle"
 
 
-#: ``--up-axis auto`` trusts the trunk when the leaves begin at least this share of the tree's extent above its lowest
-#: point along one axis and end within it at the top (the crown sits on a trunk), and the reverse holds on no other
-#: axis; 5 %: the three test trees show 15-30 % along their up axis and 0 % across it.
-TRUNK_GAP = 0.05
-#: Without a trunk to go by (all leaves, or none below the crown), the tallest extent decides when it is this much
-#: longer than each other one.
-TALLER = 1.2
-#: The file formats whose specification fixes the up axis (glTF 2.0: +Y up).
-Y_UP_FORMATS = (".gltf", ".glb")
-
-
 def stands_along(parts: list[Any]) -> tuple[str | None, str]:
-    """The axis the tree stands along, ``"+X"`` .. ``"-Z"``, from its geometry, and why; None and why when it
-    cannot tell.
-
-    Along its up axis a tree's lowest points are wood (the trunk's base) and its highest are leaves: the leaves'
-    lowest point lies well above the tree's, their highest at the tree's top. Across it, a crown reaches as far as
-    the wood on both sides. Failing that (no wood below the crown), a clearly tallest extent decides.
-    """
+    """:func:`foliage_tools.geometry.upright.stands_along` of a model file's parts."""
     points = [p.points for p in parts if len(p.points)]
     leaves = [p.points for p in parts if p.is_leaf and len(p.points)]
     if not points:
         return None, "the model has no points"
-    every = np.concatenate(points)
-    lo, hi = every.min(axis=0), every.max(axis=0)
-    extent = hi - lo
-    names = "XYZ"
-    if leaves and len(leaves) < len(points):
-        leaf = np.concatenate(leaves)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            below = np.where(extent > 0, (leaf.min(axis=0) - lo) / extent, 0.0)  # wood under the lowest leaf
-            above = np.where(extent > 0, (hi - leaf.max(axis=0)) / extent, 0.0)  # wood over the highest leaf
-        score = np.concatenate([below - above, above - below])  # +X, +Y, +Z, -X, -Y, -Z
-        best = int(np.argmax(score))
-        rivals = np.delete(score, [best, (best + 3) % 6])
-        if score[best] >= TRUNK_GAP and not np.any(rivals >= TRUNK_GAP):
-            axis = ("+" if best < 3 else "-") + names[best % 3]
-            gap = below[best % 3] if best < 3 else above[best % 3]
-            return axis, f"its wood reaches {100 * gap:.0f} % of its {names[best % 3]} extent below the lowest leaf"
-    order = np.argsort(extent)[::-1]
-    if extent[order[1]] > 0 and extent[order[0]] >= TALLER * extent[order[1]]:
-        axis = names[int(order[0])]
-        return f"+{axis}", (f"it is {extent[order[0]] / extent[order[1]]:.1f}x as tall along {axis} as across "
-                            "(no trunk below the crown to tell up from down)")
-    return None, "neither a trunk below the crown nor a clearly tallest extent shows which way is up"
+    return upright.stands_along(np.concatenate(points), np.concatenate(leaves) if leaves else None)
+
+
+#: The file formats whose specification fixes the up axis (glTF 2.0: +Y up).
+Y_UP_FORMATS = (".gltf", ".glb")
 
 
 @dataclass(frozen=True)

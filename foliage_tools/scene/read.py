@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from foliage_tools.geometry import upright
 from foliage_tools.errors import InputError
 from foliage_tools.scene import bakeable, dependencies, usd_diagnostics
 from foliage_tools.geometry.leaves import face_values_from_triangles, leaf_components, triangulate
@@ -462,4 +463,32 @@ def read_stage(stage: Usd.Stage, path: str) -> tuple[Scene, list[str]]:
             reader.warnings.append(
                 f"{path}: prototype <{proto.path}> has {proto.degenerate_triangles} degenerate (zero-area) leaf triangle(s); they were ignored."
             )
+    reader.warnings += sideways_warnings(scene, path)
     return scene, reader.warnings
+
+
+#: The start of :func:`sideways_warnings`' text (``validate`` reports it as its ``upright`` rule).
+SIDEWAYS = "lies on its side"
+
+
+def sideways_warnings(scene: Scene, path: str) -> list[str]:
+    """A warning for each prototype whose trunk shows that, placed where its first instance stands, it stands along
+    another axis than the stage's ``upAxis`` (:func:`foliage_tools.geometry.upright.stands_along`, by the trunk
+    alone): the bakes' sun and sky would then light it from the side."""
+    out = []
+    for i, proto in enumerate(scene.prototypes):
+        placed = next((inst.transform for inst in scene.instances if inst.prototype == i), None)
+        if placed is None or not proto.meshes:
+            continue
+        linear, offset = placed[:3, :3].T, placed[:3, 3]  # world = M p (column vectors)
+        every = [m.points @ linear + offset for m in proto.meshes if len(m.points)]
+        leaves = [m.points @ linear + offset for m in proto.meshes if m.is_leaf and len(m.points)]
+        if not every or not leaves:
+            continue
+        found, why = upright.stands_along(np.concatenate(every), np.concatenate(leaves), trunk_only=True)
+        if found is not None and found != f"+{scene.up_axis}":
+            fix = (f"set the stage's upAxis to {found[1]} (`foliage import --up-axis {found[1]}` for an imported mesh)"
+                   if found[0] == "+" and found[1] in "YZ" else "turn it upright in a DCC")
+            out.append(f"@{path}@: the tree <{proto.path}> {SIDEWAYS}: it stands along {found} ({why}), but the "
+                       f"stage's upAxis is {scene.up_axis}, so the bakes light it from the side. {fix[0].upper()}{fix[1:]}.")
+    return out

@@ -19,7 +19,7 @@ from foliage_tools.geometry.leaves import DEGENERATE_AREA, triangle_area_normals
 from foliage_tools.scene import bakeable, usd_diagnostics
 from foliage_tools.scene.integrity import check_layers, pending_for, record_of
 from foliage_tools.geometry.sun import choose_sun, direction_from_angles
-from foliage_tools.scene.read import _is_skipped, classify_leaf, open_stage, read_light, read_stage
+from foliage_tools.scene.read import SIDEWAYS, _is_skipped, classify_leaf, open_stage, read_light, read_stage
 from foliage_tools.scene.schemas import register
 
 register()
@@ -28,6 +28,8 @@ from pxr import Tf, Usd, UsdGeom, UsdLux, UsdValidation  # noqa: E402
 
 ERROR = "error"
 WARNING = "warning"
+#: A note that fails nothing, even with --strict: what a user may want to know of a result that is as it should be.
+INFO = "info"
 
 #: The built-in UsdValidation validators that apply to tree assets (physics,
 #: skeleton and usdz-packaging validators do not).
@@ -370,7 +372,7 @@ def _bake_files_match(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         )
 
 
-@rule("portable-folder", "A bake layer's sublayer path stays inside its folder (warning: else the folder cannot move on its own; bake --portable).")
+@rule("portable-folder", "A bake layer's sublayer path stays inside its folder (info: else the folder moves only with its input; bake --portable).")
 def _portable_folder(stage: Usd.Stage, path: str) -> Iterator[Finding]:
     from foliage_tools.scene.portable import escaping_sublayers
 
@@ -378,8 +380,8 @@ def _portable_folder(stage: Usd.Stage, path: str) -> Iterator[Finding]:
         if not layer.realPath or record_of(Path(layer.realPath)) is None:
             continue  # only foliage's own layers: an asset's layout is its author's business
         for sub in escaping_sublayers(layer):
-            yield Finding(
-                WARNING, "portable-folder",
+            yield Finding(  # a default bake is meant to sit beside its input: a note, not a failure of --strict
+                INFO, "portable-folder",
                 f"@{layer.realPath}@ sublayers @{sub}@, outside its folder: moved without it, the folder opens as an empty "
                 "scene. Move both together, or bake with `foliage bake --portable` (a flattened copy of the input in the folder).",
             )
@@ -435,7 +437,8 @@ def validate(path: str | Path) -> list[Finding]:
     if not any(f.severity == ERROR for f in findings):
         try:
             with usd_diagnostics.captured():  # what USD warns reading is the rules' to say
-                read_stage(stage, str(path))
+                _, read_warnings = read_stage(stage, str(path))
+            findings += [Finding(WARNING, "upright", w) for w in read_warnings if SIDEWAYS in w]
         except InputError as exc:
             findings.append(Finding(ERROR, getattr(exc, "rule", "bakeable"), str(exc), getattr(exc, "prim", "")))
     return findings
@@ -456,5 +459,12 @@ def _guarded(name: str, run: Callable[[], list[Finding]], stage: Usd.Stage, path
                                  f"({usd_diagnostics.open_failure(exc, path)}); fix or re-export the asset.")]
 
 
+#: Findings of the scene reader's own (``validate`` reads the stage as the bakes do once its rules find no error).
+READER_RULES = (
+    ("upright", "Each tree stands along the stage's upAxis, by its trunk (warning: else the bakes light it from the side)."),
+)
+
+
 def rule_docs() -> list[tuple[str, str]]:
-    return [(name, doc) for name, doc, _ in RULES] + [(n, "USD built-in validator") for n in USD_VALIDATORS]
+    return ([(name, doc) for name, doc, _ in RULES] + list(READER_RULES)
+            + [(n, "USD built-in validator") for n in USD_VALIDATORS])
