@@ -149,7 +149,7 @@ def validate(scene: Path | None, strict: bool, list_rules: bool, as_json: bool, 
             console.print_json(report.as_json())
         elif not quiet:
             for f in report.stats["findings"]:
-                colour = "red" if f["severity"] == "error" else "yellow"
+                colour = {"error": "red", "warning": "yellow"}.get(f["severity"], "cyan")
                 console.stdout.print(f"[{colour}]{f['severity']}[/{colour}] {escape('[' + f['rule'] + ']')} {escape(f['message'])}", highlight=False, markup=True, soft_wrap=True)
             s = report.stats
             verdict = "FAILED" if failed else "passed"
