@@ -156,6 +156,7 @@ def _locked_bake(path: Path, outdir: Path, params: BakeParams, progress: Progres
 
             progress.step(f"flattening {path} into the output folder (--portable)")
             copied = write_portable_input(path, commit.staging, report.warnings, root=params.portable_root)
+            commit.copies.update(p.name for p in copied[:-1])  # the input's files as they are; the layer is ours
             source = copied[-1]
         stages = _run_stages(source, commit.staging, params, progress, stem=Path(path).stem, ext=ext)
         _name_the_input(stages, commit.staging, path)

@@ -364,7 +364,7 @@ def _read_back(path: Path) -> str | None:
     return None
 
 
-def check_written(path: Path, final: Path) -> None:
+def check_written(path: Path, final: Path, *, read_back: bool = True) -> None:
     """Before a commit: the file staged at ``path`` (for ``final``) is whole.
 
     A write past the file-size limit (``ulimit -f``) fails with EFBIG (Python
@@ -373,6 +373,9 @@ def check_written(path: Path, final: Path) -> None:
     or one that does not read back as what its extension says (a ``.vdb``
     whose grids all read, a layer USD opens, an image whose pixels read), is
     refused (:class:`OutputError`), so it never replaces an earlier result.
+    ``read_back=False``: a copy of another file (``Commit.copies``), which is
+    not what its extension says by our writing, and which the copy itself
+    checked (``shutil`` raises on a short write).
     """
     st = os.lstat(path)
     if not stat.S_ISREG(st.st_mode):
@@ -381,7 +384,7 @@ def check_written(path: Path, final: Path) -> None:
     limit = file_size_limit()
     if limit is not None and size >= limit:
         raise _size_limit_error(final, size)
-    problem = _read_back(path)
+    problem = _read_back(path) if read_back else None
     if problem is not None:
         raise OutputError(
             f"@{final}@: the file just written does not read back whole ({problem}), so it was not moved into place: "
@@ -401,6 +404,9 @@ class Commit:
     def __init__(self, directory: Path, name: str) -> None:
         self.directory = Path(directory)
         self.name = name
+        #: Names staged as copies of other files (``bake --portable``'s copies of the input's textures): checked
+        #: against the file-size limit before the commit, not read back as what their extension says.
+        self.copies: set[str] = set()
         self.staging: Path | None = self.directory / f".{staging_label(name)}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
         try:
             self.staging.mkdir()
@@ -445,7 +451,7 @@ class Commit:
         # a commit into another result's staging directory (a bake's stage) names the file by its final place
         where = self.directory.parent if _STAGING.fullmatch(self.directory.name) else self.directory
         for n in names:
-            check_written(staging / n, where / n)
+            check_written(staging / n, where / n, read_back=n not in self.copies)
         try:
             return self._commit(names)
         except KeyboardInterrupt as exc:
