@@ -55,3 +55,29 @@ def test_forged_record_is_refused_without_reading_the_file(tmp_path: Path, secre
     b = foliage("bake", tree, "-o", tmp_path / "out", *FAST, "-q")
     assert b.returncode == 2, b.stderr
     assert messages[0] in b.stderr and leaked not in b.stdout + b.stderr
+
+
+# -- a forged batch.json -----------------------------------------------------------------------------------------------
+
+def test_batch_cache_hit_needs_the_assets_own_outputs_under_outroot(tmp_path: Path) -> None:
+    outputs = ["../victim.txt", "/etc/hostname", "tree/../../victim.txt"]
+    tree = _tree_with(tmp_path)
+    root = tmp_path / "root"
+    first = foliage("batch", tree, "-o", root, *FAST, "--json")
+    assert first.returncode == 0, first.stderr
+    (tmp_path / "victim.txt").write_text("victim\n")
+    record = json.loads((root / "batch.json").read_text())
+    record["assets"]["tree"]["outputs"] = outputs
+    (root / "batch.json").write_text(json.dumps(record))
+    (root / "tree").rename(tmp_path / "moved")
+    dry = foliage("batch", tree, "-o", root, *FAST, "--dry-run", "--json")
+    assert dry.returncode == 0, dry.stderr
+    entry = json.loads(dry.stdout)["stats"]["assets"]["tree"]
+    assert entry["action"] == "bake" and "not one foliage wrote" in entry["reason"], entry
+    again = foliage("batch", tree, "-o", root, *FAST, "--json")
+    assert again.returncode == 0, again.stderr
+    report = json.loads(again.stdout)
+    assert report["stats"]["assets"]["tree"]["status"] == "baked"
+    for out in report["outputs"]:
+        assert Path(out).resolve().is_relative_to(root.resolve()), report["outputs"]
+    assert (root / "tree" / "tree.lb.usda").is_file()
