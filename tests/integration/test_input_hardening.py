@@ -81,3 +81,49 @@ def test_batch_cache_hit_needs_the_assets_own_outputs_under_outroot(tmp_path: Pa
     for out in report["outputs"]:
         assert Path(out).resolve().is_relative_to(root.resolve()), report["outputs"]
     assert (root / "tree" / "tree.lb.usda").is_file()
+
+
+# -- bake --portable: layers from outside the folder, copy names ---------------------------------------------------------
+
+def _portable(tree: Path, tmp_path: Path) -> tuple[list[Path], list[str]]:
+    from foliage_tools.scene.portable import write_portable_input
+
+    staging = tmp_path / "staging"
+    staging.mkdir()
+    warnings: list[str] = []
+    return write_portable_input(tree, staging, warnings), warnings
+
+
+def test_portable_names_layers_composed_from_outside_the_folder(tmp_path: Path) -> None:
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    (shared / "extra.usda").write_text('#usda 1.0\ndef Xform "Extra"\n{\n}\n')
+    (shared / "ref.usda").write_text('#usda 1.0\n(\n    defaultPrim = "Ref"\n)\ndef Xform "Ref"\n{\n}\n')
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "inside.usda").write_text('#usda 1.0\ndef Xform "Inside"\n{\n}\n')
+    text = TREE.read_text().replace('    upAxis = "Z"\n', '    subLayers = [@../shared/extra.usda@, @./inside.usda@]\n    upAxis = "Z"\n', 1)
+    text += f'\ndef Xform "Referenced" (\n    prepend references = @{shared / "ref.usda"}@\n)\n{{\n}}\n'
+    tree = _tree_with(tmp_path / "in", text=text)
+    written, warnings = _portable(tree, tmp_path)
+    composed = [w for w in warnings if "composed into @tree.input.usda@" in w]
+    assert sorted(composed) == sorted(w for w in composed if str(shared) in w) and len(composed) == 2, warnings
+    assert any("extra.usda@" in w for w in composed) and any("ref.usda@" in w for w in composed)
+    assert not any("inside.usda" in w for w in warnings) and not any(f"@{tree}@" in w for w in warnings)
+
+
+def test_portable_copy_never_takes_the_flattened_layers_name(tmp_path: Path) -> None:
+    from pxr import Sdf, Usd
+
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "usda").write_bytes(b"texture bytes\n")
+    text = TREE.read_text().replace('    def Mesh "Trunk"\n    {\n',
+                                    '    def Mesh "Trunk"\n    {\n        asset foliage:texture = @./usda@\n', 1)
+    tree = _tree_with(tmp_path / "in", text=text)
+    written, warnings = _portable(tree, tmp_path)
+    layer_file = tmp_path / "staging" / "tree.input.usda"
+    assert written[-1] == layer_file and len(set(written)) == len(written) == 2, written
+    stage = Usd.Stage.Open(str(layer_file))
+    asset = stage.GetPrimAtPath("/Tree/Trunk").GetAttribute("foliage:texture").Get()
+    assert isinstance(asset, Sdf.AssetPath) and asset.path != "./tree.input.usda", asset
+    assert (tmp_path / "staging" / asset.path).read_bytes() == b"texture bytes\n"
+    assert stage.GetPrimAtPath("/Tree/Leaves").IsValid()
