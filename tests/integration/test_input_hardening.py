@@ -127,3 +127,23 @@ def test_portable_copy_never_takes_the_flattened_layers_name(tmp_path: Path) -> 
     assert isinstance(asset, Sdf.AssetPath) and asset.path != "./tree.input.usda", asset
     assert (tmp_path / "staging" / asset.path).read_bytes() == b"texture bytes\n"
     assert stage.GetPrimAtPath("/Tree/Leaves").IsValid()
+
+
+# -- primvars:foliage:isLeaf that is not a bool -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("authored", ['string primvars:foliage:isLeaf = "no"', "bool[] primvars:foliage:isLeaf = []",
+                                      "int primvars:foliage:isLeaf = 0"])
+def test_is_leaf_that_is_not_a_bool_is_refused_with_one_message(tmp_path: Path, authored: str) -> None:
+    text = TREE.read_text().replace('    def Mesh "Trunk"\n    {\n', f'    def Mesh "Trunk"\n    {{\n        {authored}\n', 1)
+    tree = _tree_with(tmp_path, text=text)
+    v = foliage("validate", tree, "--json")
+    assert v.returncode == 1, v.stderr
+    found = [f for f in json.loads(v.stdout)["stats"]["findings"] if f["rule"] == "attribute-types"]
+    assert len(found) == 1 and found[0]["prim"] == "/Tree/Trunk", found
+    message = found[0]["message"]
+    assert "<" + "/Tree/Trunk>" in message and "`bool primvars:foliage:isLeaf = true`" in message
+    b = foliage("bake", tree, "-o", tmp_path / "out", *FAST, "-q")
+    assert b.returncode == 2 and message in b.stderr, b.stderr
+    assert not (tmp_path / "out" / "tree.lb.usda").exists()
+    i = foliage("inspect", tree)
+    assert i.returncode != 3, i.stderr
