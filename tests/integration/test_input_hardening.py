@@ -147,3 +147,16 @@ def test_is_leaf_that_is_not_a_bool_is_refused_with_one_message(tmp_path: Path, 
     assert not (tmp_path / "out" / "tree.lb.usda").exists()
     i = foliage("inspect", tree)
     assert i.returncode != 3, i.stderr
+
+
+def test_why_bake_with_the_assets_name_refuses_another_assets_folder(tmp_path: Path) -> None:
+    from foliage_tools.pipeline.batch_cache import Key, why_bake
+
+    for folder in ("tree", "oak"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / f"{folder}.lb.usda").write_text("#usda 1.0\n")
+    key = Key(digest="k", files={"tree.usda": "h"}, options={}, tool="t")
+    entry = {"status": "baked", "tool": "t", "options": {}, "files": {"tree.usda": "h"}, "key": "k"}
+    assert why_bake(key, {**entry, "outputs": ["tree/tree.lb.usda"]}, tmp_path, name="tree") is None
+    assert "not one foliage wrote" in str(why_bake(key, {**entry, "outputs": ["oak/oak.lb.usda"]}, tmp_path, name="tree"))
+    assert "missing" in str(why_bake(key, {**entry, "outputs": ["tree/tree.density.usda"]}, tmp_path, name="tree"))
