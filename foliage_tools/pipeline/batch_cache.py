@@ -135,8 +135,11 @@ def write_record(outroot: Path, assets: dict) -> Path:
     return path
 
 
-def why_bake(key: Key, previous: dict | None, outroot: Path) -> str | None:
-    """Why the asset must bake (a sentence), or None when its last bake is still valid (a cache hit)."""
+def why_bake(key: Key, previous: dict | None, outroot: Path, name: str | None = None) -> str | None:
+    """Why the asset must bake (a sentence), or None when its last bake is still valid (a cache hit).
+
+    A hit needs every recorded output to be a file of the asset's own folder under OUTROOT (``name``: the asset's
+    name, that folder's) that is there now: a record naming files elsewhere is not one a batch wrote."""
     if previous is None:
         return "not baked before (no entry in batch.json)"
     if previous.get("status") not in ("baked", "cached"):
@@ -158,7 +161,26 @@ def why_bake(key: Key, previous: dict | None, outroot: Path) -> str | None:
         return "inputs " + "; ".join(parts)
     if previous.get("key") != key.digest:
         return "its key changed"
-    missing = [o for o in previous.get("outputs", []) if not (Path(outroot) / o).is_file()]
-    if missing or not previous.get("outputs"):
-        return f"its outputs are missing ({', '.join(missing) or 'none recorded'})"
+    outputs = previous.get("outputs")
+    if not isinstance(outputs, list) or not outputs:
+        return "its outputs are missing (none recorded)"
+    foreign = [str(o) for o in outputs if not _own_output(o, outroot, name)]
+    if foreign:
+        return (f"batch.json records outputs that are not its own files in its folder under OUTROOT "
+                f"({', '.join(foreign)}), so the record is not one foliage wrote")
+    missing = [o for o in outputs if not (Path(outroot) / o).is_file()]
+    if missing:
+        return f"its outputs are missing ({', '.join(missing)})"
     return None
+
+
+def _own_output(output: object, outroot: Path, name: str | None) -> bool:
+    """Whether a recorded output is what a batch records: ``<folder>/<file>`` relative to OUTROOT (the folder the
+    asset's name, when given), naming a file that, links resolved, lies in OUTROOT/<folder>/."""
+    if not isinstance(output, str) or "\\" in output:
+        return False
+    parts = output.split("/")
+    if len(parts) != 2 or any(p in ("", ".", "..") for p in parts) or (name is not None and parts[0] != name):
+        return False
+    folder = (Path(outroot) / parts[0]).resolve()
+    return (Path(outroot) / output).resolve().parent == folder and folder.parent == Path(outroot).resolve()

@@ -472,7 +472,33 @@ def attribute_type_problem(prim: Usd.Prim, path: str) -> Problem | None:
                 f"value a bake can read{expected}. Author it with its schema's type, or remove it.",
                 str(prim.GetPath()),
             )
+    if prim.IsA(UsdGeom.Mesh):
+        return leaf_flag_problem(prim, path)
     return None
+
+
+LEAF_FLAG = "primvars:foliage:isLeaf"
+
+
+def leaf_flag_problem(prim: Usd.Prim, path: str) -> Problem | None:
+    """A ``primvars:foliage:isLeaf`` authored as anything but a bool (or a non-empty bool[]): its value says nothing a
+    bake could take for leaf or wood (a string "no" is no false)."""
+    attr = prim.GetAttribute(LEAF_FLAG)
+    if not attr or not attr.HasAuthoredValue():
+        return None
+    value = attr.Get(Usd.TimeCode.Default())
+    if value is None or isinstance(value, Sdf.UnregisteredValue):
+        return None  # blocked, or a type USD does not know (attribute_type_problem)
+    type_name = attr.GetTypeName()
+    if type_name == Sdf.ValueTypeNames.Bool or (type_name == Sdf.ValueTypeNames.BoolArray and len(value) > 0):
+        return None
+    what = "an empty bool[]" if type_name == Sdf.ValueTypeNames.BoolArray else f"{type_name} {value!r}"
+    return Problem(
+        "attribute-types",
+        f"@{path}@: <{prim.GetPath()}>.{LEAF_FLAG} is {what}, not true or false, so it does not say whether the mesh is "
+        f"a leaf. Author `bool {LEAF_FLAG} = true` (or `= false`), or remove it.",
+        str(prim.GetPath()),
+    )
 
 
 def mesh_arrays(prim: Usd.Prim) -> tuple:

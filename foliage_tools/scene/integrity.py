@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from foliage_tools import __version__
+from foliage_tools.errors import InputError
 from foliage_tools.scene.atomic import pending_commits
 from foliage_tools.scene.schemas import register
 
@@ -155,14 +156,43 @@ def _pending_hint(directory: Path, names: set[str]) -> str:
     return ""
 
 
+def _own_references(layer_path: Path) -> set[str]:
+    """The asset paths :func:`seal` may record for the layer at ``layer_path``: its ``.vdb`` assets and its sublayers."""
+    layer = Sdf.Layer.OpenAsAnonymous(str(layer_path))
+    if layer is None:
+        return set()
+    return ({a for a in _asset_paths(layer) if a.endswith(".vdb")}
+            | {s for s in layer.subLayerPaths if s.endswith(USD_SUFFIXES)})
+
+
+def _written_by_us(layer_path: Path, asset: object, recorded: object) -> bool:
+    """Whether a ``files`` entry of the layer's record is one :func:`seal` writes: a relative path (``./x``, ``../x``)
+    the layer itself names as a grid file or a sublayer, with a ``sha256:`` hash. Only such entries are opened."""
+    if not isinstance(asset, str) or not isinstance(recorded, str) or not recorded.startswith("sha256:"):
+        return False
+    if not asset.startswith(("./", "../")):
+        return False
+    return asset in _own_references(layer_path)
+
+
 def check_layer(layer_path: Path) -> list[str]:
-    """Messages for every recorded file beside the layer at ``layer_path`` that is not the one it was written with."""
+    """Messages for every recorded file beside the layer at ``layer_path`` that is not the one it was written with.
+
+    Raises :class:`InputError` for a record that lists a file the layer does not name (not a record :func:`seal`
+    wrote): none of its files is opened then."""
     layer_path = Path(layer_path)
     record = record_of(layer_path)
     if not record:
         return []
+    files = dict(record.get("files") or {})
+    forged = sorted(str(a) for a in files if not _written_by_us(layer_path, a, files[a]))
+    if forged:
+        raise InputError(
+            f"@{layer_path}@: its foliage record (customLayerData foliage.files) lists @{forged[0]}@, which is not a "
+            "grid file or a sublayer this layer names, so the record is not one foliage wrote; no file it lists was "
+            f"read. Run the command that writes @{layer_path.name}@ again, or remove the record from the layer.")
     problems = []
-    for asset, recorded in dict(record.get("files", {})).items():
+    for asset, recorded in files.items():
         f = Path(os.path.normpath(layer_path.parent / asset))
         if not f.is_file():
             continue  # a missing file is reported where it is read (validate's volume-grids rule, USD composition)

@@ -15,7 +15,9 @@ Only files under the input's own folder (or the folder ``--portable-root``
 names) are copied: an asset path is the input's to write, so an absolute or
 ``../`` path, or a symlink under the folder that leads out of it, could
 otherwise make a bake copy any file it can read (``@/etc/passwd@``) into its
-output. Such a path is kept as it is, with a warning naming it.
+output. Such a path is kept as it is, with a warning naming it. A sublayer, reference
+or payload outside that folder is composed into the copy like any other (the
+flattened layer holds no path to it), with a warning naming it.
 
 Flat names, not a subfolder: OUTDIR's files are committed together as one
 result (``scene.atomic``), and the commit moves files of one directory.
@@ -53,6 +55,9 @@ def write_portable_input(path: Path, directory: Path, warnings: list[str], root:
     directory = Path(directory)
     root = Path(root if root is not None else path.absolute().parent).resolve()
     stage = Usd.Stage.Open(str(path))
+    own = Path(stage.GetRootLayer().realPath).resolve()
+    composed = sorted({Path(used.realPath).resolve() for used in stage.GetUsedLayers() if used.realPath}
+                      - {own}, key=str)
     layer = stage.Flatten()
     layer.documentation = stage.GetRootLayer().documentation  # not Flatten's note naming this machine's path
     # the input's own bake record names files beside the input, not these copies (scene.integrity)
@@ -78,7 +83,7 @@ def write_portable_input(path: Path, directory: Path, warnings: list[str], root:
             return asset
         if source not in copies:
             name = prefix + re.sub(r"[^A-Za-z0-9_.-]", "_", source.name)
-            taken = set(copies.values())
+            taken = set(copies.values()) | {input_copy_name(path)}  # never the flattened layer's own name
             stem, ext = os.path.splitext(name)
             k = 1
             while name in taken:
@@ -101,6 +106,12 @@ def write_portable_input(path: Path, directory: Path, warnings: list[str], root:
         warnings.append(f"--portable: @{asset}@ (named by the input) lies outside @{root}@, so it was not copied; the "
                         "output folder still depends on it where it is. Move it under that folder, or pass "
                         "--portable-root with a folder that holds it.")
+    for used in composed:
+        if not used.is_relative_to(root):
+            warnings.append(f"--portable: @{used}@ (a sublayer, reference or payload of the input) lies outside "
+                            f"@{root}@; its content was composed into @{input_copy_name(path)}@, the output folder's "
+                            "copy of the input. Move it under that folder, or pass --portable-root with a folder "
+                            "that holds it.")
     return written
 
 

@@ -117,7 +117,7 @@ def classify_leaf(prim: Usd.Prim) -> tuple[bool, str]:
     if prim.HasAPI(LEAF_API):
         return True, "FoliageLeafAPI"
     pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("foliage:isLeaf")
-    if pv and pv.HasAuthoredValue():
+    if pv and pv.HasAuthoredValue() and bakeable.leaf_flag_problem(prim, "") is None:  # else refused (attribute-types)
         value = pv.Get()
         if value is not None:
             flag = bool(np.asarray(value).reshape(-1)[0]) if np.ndim(value) else bool(value)
