@@ -151,3 +151,13 @@ def test_a_config_that_is_a_fifo_is_refused_without_reading_it(tmp_path):
     r = foliage("density", tree, "-o", tmp_path / "d.usda", "--config", fifo, "--json")  # the old code blocked here
     assert r.returncode == 2, r.stderr
     assert "FIFO" in _error(r)["message"]
+
+
+def test_own_names_are_the_planned_names_their_layers_grids_and_what_allow_accepts():
+    from foliage_tools.scene import atomic
+
+    own = atomic.own_names(["tree.lb.usda", "tree.png"], allow=lambda n: n.startswith("tree.input."))
+    for name in ("tree.lb.usda", "tree.png", "tree.lb.vdb", "tree.lb.03_oak.vdb", "tree.lb.forest.vdb", "tree.input.bark.png"):
+        assert own(name), name
+    for name in ("tree.usda", "oak.lb.usda", "tree.vdb", "tree.lb.x.vdb", "tree.density.usda", "victim.txt"):
+        assert not own(name), name
