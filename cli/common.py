@@ -377,6 +377,13 @@ def _load_config(ctx: click.Context, _param, value: Path | None):
         return value
     import tomllib
 
+    from foliage_tools.scene.dependencies import file_problem
+
+    problem = file_problem(value)  # from stat alone: a FIFO or a device is never opened (it would block or never end)
+    if problem is not None and Path(value).exists():
+        raise click.BadParameter(f"@{value}@ {problem}; give an option file (TOML).", ctx=ctx, param_hint="--config")
+    if problem is not None and os.path.islink(value):  # a loop, or a link to nothing
+        raise click.BadParameter(f"@{value}@ {problem}.", ctx=ctx, param_hint="--config")
     try:
         data = tomllib.loads(Path(value).read_text(encoding="utf-8-sig"))  # an editor's byte-order mark is fine
     except FileNotFoundError:

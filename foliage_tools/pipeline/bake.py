@@ -19,10 +19,11 @@ work.
 from __future__ import annotations
 
 import json
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from foliage_tools.errors import FoliageError, OutputError, UsageError
 from foliage_tools.lighting.optics import LeafOptics
@@ -144,7 +145,7 @@ def _locked_bake(path: Path, outdir: Path, params: BakeParams, progress: Progres
     ext = layer_extension(path, params)
     names = planned_outputs(path, params, ext)
     _check_outputs(path, outdir, names)
-    recover(outdir, [label, *names], report.warnings)
+    recover(outdir, names, report.warnings, label=label, allow=portable_copies(path, outdir, params))
     report.warnings += _legacy_staging(outdir)
     commit: Commit | None = None
     try:
@@ -313,6 +314,25 @@ def _legacy_staging(outdir: Path) -> list[str]:
             "nothing uses it: remove it once no such bake is running." for p in found]
 
 
+def portable_copies(path: Path, outdir: Path, params: BakeParams) -> Callable[[str], bool] | None:
+    """With --portable, the names of the input's copied asset files (``<stem>.input.NAME``), which a bake's journal
+    lists beside its planned outputs; none of them a file the input uses (inputs are never modified)."""
+    if not params.portable:
+        return None
+    from foliage_tools.scene.write import input_files
+
+    prefix, used = f"{Path(path).stem}.input.", None
+
+    def copy(name: str) -> bool:
+        nonlocal used
+        if not name.startswith(prefix):
+            return False
+        used = input_files(path) if used is None else used
+        return Path(os.path.realpath(outdir / name)) not in used
+
+    return copy
+
+
 def _check_outputs(path: Path, outdir: Path, names: list[str]) -> None:
     """Before any work: no output may be a directory, or a file the input uses."""
     from foliage_tools.scene.atomic import check_name_fits
@@ -321,12 +341,12 @@ def _check_outputs(path: Path, outdir: Path, names: list[str]) -> None:
     used = input_files(path)
     for name in names:
         f = outdir / name
+        check_name_fits(f)  # first: a symbolic link that loops there cannot be resolved below
         if f.is_dir() and not f.is_symlink():
             raise OutputError(f"@{f}@ is a directory, where the bake writes its file {name}; remove or rename it, or bake "
                               "into another directory. Nothing was written.")
         if f.resolve() in used:
             raise OutputError(f"@{f}@ is a file the input @{path}@ uses; bake into another directory (inputs are never modified).")
-        check_name_fits(f)
 
 
 def _commit(path: Path, outdir: Path, commit: Commit, *, portable_input: Path | None = None) -> dict[str, Path]:

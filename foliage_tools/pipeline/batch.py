@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from foliage_tools.errors import EXIT_BAD_INPUT, EXIT_INTERNAL, FoliageError, OutputError, UsageError
-from foliage_tools.pipeline.bake import BakeParams
+from foliage_tools.pipeline.bake import BakeParams, portable_copies, planned_outputs
 from foliage_tools.pipeline.batch_cache import Key, asset_key, load_record, why_bake, write_record
 from foliage_tools.pipeline.report import Report
 from foliage_tools.pipeline.stats import BatchStats
@@ -220,7 +220,10 @@ def _tidy(todo: list[_Plan], outroot: Path) -> None:
     for p in todo:
         outdir = outroot / p.asset.name
         try:
-            recover(outdir, [f"{Path(p.asset.path).stem}.bake"], [])
+            # the bake's own planned names (either layer format: reading the input again to choose is not worth it)
+            names = {n for ext in ("usda", "usdc") for n in planned_outputs(p.asset.path, p.asset.params, ext)}
+            recover(outdir, sorted(names), [], label=f"{Path(p.asset.path).stem}.bake",
+                    allow=portable_copies(p.asset.path, outdir, p.asset.params))
             outdir.rmdir()  # only if the bake left it empty
         except (FoliageError, OSError):
             pass

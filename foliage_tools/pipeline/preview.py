@@ -230,6 +230,9 @@ def run_preview(path: Path, out: Path, params: PreviewParams, *, progress: Progr
     progress = progress or Silent()
     report: Report[PreviewStats] = Report(command="preview", inputs=[str(path)])
     fmt = image_format(out)
+    from foliage_tools.scene.atomic import refuse_link_loop
+
+    refuse_link_loop(Path(out))  # before resolving it
     if Path(out).resolve() == Path(path).resolve():
         raise OutputError(f"@{out}@ is the input file; give another output path.")
     paths = frame_paths(Path(out), params.frame_count, params.sequence)

@@ -115,7 +115,9 @@ def check_writable(path: Path) -> None:
 
 
 def check_name_fits(path: Path) -> None:
-    """Refuse a file name longer than its filesystem allows (ENAMETOOLONG), before any work."""
+    """Refuse a file name longer than its filesystem allows (ENAMETOOLONG), or one that is a symbolic link that
+    loops (which no path check could resolve), before any work."""
+    refuse_link_loop(path)
     parent = path.parent if str(path.parent) else Path(".")
     try:
         limit = os.pathconf(parent, "PC_NAME_MAX")
@@ -128,10 +130,21 @@ def check_name_fits(path: Path) -> None:
         )
 
 
+def refuse_link_loop(path: Path) -> None:
+    """:class:`OutputError` when the output name ``path`` (or a folder above it) is a symbolic link that loops."""
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise OutputError(f"@{path}@ is a symbolic link that loops (it never reaches a file); remove it "
+                              f"(rm '{path}') or choose another output path.") from None
+
+
 def _alive(pid: int) -> bool:
+    """Whether ``pid`` is a live process of this host (a number outside the platform's pid range is none)."""
     try:
         os.kill(pid, 0)
-    except ProcessLookupError:
+    except (ProcessLookupError, OverflowError):
         return False
     except PermissionError:  # someone else's process
         return True
@@ -224,7 +237,9 @@ def run_lock(directory: Path, label: str) -> Iterator[None]:
                     fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
                     made = True
                 except FileExistsError:
-                    fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
+                    _refuse_odd_lock(path, os.lstat(path))  # before opening: a device or FIFO is not even opened
+                    fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK)
+                    _refuse_odd_lock(path, os.fstat(fd))  # what was opened: not swapped in between
             except OSError as exc:
                 if exc.errno == errno.ELOOP:
                     raise OutputError(f"@{path}@ is a symbolic link, where this run keeps its lock; a foliage run "
@@ -256,7 +271,7 @@ def run_lock(directory: Path, label: str) -> Iterator[None]:
             locked = made = False
             os.close(fd)
             fd = -1
-        if locked:
+        if locked:  # into a file this run created, or one verified a lone regular file (_refuse_odd_lock)
             with contextlib.suppress(OSError):
                 os.ftruncate(fd, 0)
                 os.write(fd, f"{socket.gethostname()} {os.getpid()}\n".encode())
@@ -267,6 +282,18 @@ def run_lock(directory: Path, label: str) -> Iterator[None]:
                 os.unlink(path)
         if fd >= 0:
             os.close(fd)
+
+
+def _refuse_odd_lock(path: Path, st: os.stat_result) -> None:
+    """A lock file a foliage run made is a regular file with one link: anything else (a hard link to another file,
+    a FIFO, a device) is not written into, but refused (:class:`OutputError`)."""
+    if stat.S_ISLNK(st.st_mode):
+        return  # opening it with O_NOFOLLOW fails (ELOOP), and says so
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink > 1:
+        what = "is not a regular file" if not stat.S_ISREG(st.st_mode) else f"has {st.st_nlink} hard links"
+        raise OutputError(
+            f"@{path}@ {what}, where this run keeps its lock; a foliage run never makes one, so nothing was written "
+            f"into it: remove it (rm '{path}') and run the command again.")
 
 
 def _fsync(path: Path, directory: bool = False) -> None:
@@ -621,6 +648,34 @@ def staged_names(staging: Path) -> list[str] | None:
     return names
 
 
+def own_names(names: Iterable[str], allow: Callable[[str], bool] | None = None) -> Callable[[str], bool]:
+    """Whether a name is one a command with the planned outputs ``names`` writes: one of them, a grid file of a
+    layer among them (``OUT.vdb``, ``OUT.forest.vdb``, ``OUT.NN_name.vdb``: ``pipeline.density.vdb_path``), or
+    one ``allow`` accepts."""
+    planned = set(names)
+    stems = [Path(n).stem for n in planned if Path(n).suffix in (".usda", ".usdc", ".usd", ".vdb")]
+    grids = re.compile(rf"(?:{'|'.join(map(re.escape, stems))})(?:\.forest|\.\d\d_[A-Za-z0-9_]+)?\.vdb") if stems else None
+
+    def own(name: str) -> bool:
+        return (name in planned or bool(grids and grids.fullmatch(name)) or (allow is not None and allow(name)))
+
+    return own
+
+
+def _own_journal(staging: Path, own: Callable[[str], bool]) -> list[str] | None:
+    """:func:`staged_names`, refusing a journal that names a file the command does not write (the input, another
+    result's file, ...): a foliage run only ever journals its own outputs."""
+    names = staged_names(staging)
+    for n in names or []:
+        if not own(n):
+            raise OutputError(
+                f"@{staging}@ looks like a foliage staging folder of this output, but its journal {JOURNAL} names "
+                f"{n!r}, which is not a file this command writes; a foliage run never leaves that, so nothing was "
+                f"moved or removed. Look at what it holds, then remove it (rm -r '{staging}') and run the command "
+                "again.")
+    return names
+
+
 def _owner(staging: Path) -> tuple[str, int | None]:
     """(host, pid) of the run that made ``staging`` as its ``.owner`` says; this host and None where it says nothing."""
     path = staging / OWNER
@@ -636,7 +691,8 @@ def _owner(staging: Path) -> tuple[str, int | None]:
         return socket.gethostname(), None
 
 
-def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
+def recover(directory: Path, names: Iterable[str], warnings: list[str], *, label: str | None = None,
+            allow: Callable[[str], bool] | None = None) -> None:
     """Finish or remove what killed runs left behind for the outputs ``names`` in ``directory``.
 
     A staging directory (module docstring) whose run is no longer alive is
@@ -646,16 +702,20 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
     Runs still alive are left alone, and so are the staging directories of
     runs on another host (this host cannot tell whether they are alive), with
     a warning naming the host. Only what :func:`staged_names` accepts is
-    followed: anything else is refused (:class:`OutputError`) before anything
-    moves.
+    followed, and a journal is followed only when every name in it is one
+    this command writes (:func:`own_names`: ``names``, the grid files of a
+    layer among them, and what ``allow`` accepts): anything else is refused
+    (:class:`OutputError`) before anything moves. ``label``: the LABEL of the
+    command's staging folders when it is not one of ``names`` (``bake``'s).
     """
     directory = Path(directory)
     names = list(names)
-    labels = {staging_label(n) for n in names}
+    labels = {staging_label(n) for n in names} | ({staging_label(label)} if label else set())
+    own = own_names(names, allow)
     stems = "|".join(re.escape(Path(n).stem) for n in names)
     legacy = re.compile(rf"\.(?:{stems})(?:\.\d\d_[A-Za-z0-9_]+)?\.tmp-(?P<pid>\d+)\.(?:vdb|usda|usdc|usd|png|exr|json|svg|pdf)")
     try:
-        entries = list(directory.iterdir()) if names else []
+        entries = list(directory.iterdir()) if labels else []
     except OSError:
         return
     stale = []
@@ -666,7 +726,7 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
         if st is None:
             continue
         if m and m["label"] in labels:
-            staged_names(entry)  # refuses a symbolic link, a planted journal, ... whoever it claims to be
+            _own_journal(entry, own)  # refuses a symbolic link, a planted journal, ... whoever it claims to be
             if not stat.S_ISDIR(st.st_mode):
                 continue
             host, _ = _owner(entry)
@@ -695,7 +755,7 @@ def recover(directory: Path, names: Iterable[str], warnings: list[str]) -> None:
                 entry.unlink(missing_ok=True)
                 warnings.append(f"removed @{entry}@, a temporary file left by an interrupted run (process {pid}).")
                 continue
-            journal = staged_names(entry)  # again, under the lock: what is moved is what was checked
+            journal = _own_journal(entry, own)  # again, under the lock: what is moved is what was checked
             if journal is not None:
                 todo = [n for n in journal if _lstat(entry / n) is not None]
                 try:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from foliage_tools.errors import OutputError
-from foliage_tools.scene.atomic import atomic_outputs, check_name_fits, check_writable, recover
+from foliage_tools.scene.atomic import atomic_outputs, check_name_fits, check_writable, recover, refuse_link_loop
 from foliage_tools.scene.dependencies import dependencies
 from foliage_tools.scene.integrity import locator, new_commit_id, seal, utc_now
 from foliage_tools.scene.schemas import LIGHTING_API, register
@@ -162,6 +162,7 @@ def check_output_path(input_path: Path, out: Path, extra_outputs=(), *, writes_g
     """
     if out.suffix not in USD_EXTENSIONS:
         raise OutputError(f"@{out}@: the output must be a USD layer ({', '.join(USD_EXTENSIONS)}).")
+    refuse_link_loop(out)  # before resolving it
     if out.parent.is_dir():
         check_name_fits(out)
     if out.resolve() == Path(input_path).resolve():
