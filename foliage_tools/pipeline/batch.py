@@ -120,7 +120,7 @@ def run_batch(assets: list[Asset], outroot: Path, params: BatchParams, *, progre
     plans = []
     for a in assets:
         key = asset_key(a.path, a.params)
-        reason = "--force" if params.force else why_bake(key, previous.get(a.name), outroot)
+        reason = "--force" if params.force else why_bake(key, previous.get(a.name), outroot, name=a.name)
         plans.append(_Plan(asset=a, key=key, reason=reason))
     todo = [p for p in plans if p.reason is not None]
     report.stats = {"dry_run": params.dry_run, "workers": None, "scheduler": params.scheduler, "dashboard": None,

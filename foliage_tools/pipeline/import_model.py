@@ -81,11 +81,15 @@ def leaf_matcher(pattern: str) -> Any:
 
 def run_import(path: Path, out: Path, params: ImportParams, *, progress: Progress | None = None) -> Report[ImportStats]:
     from foliage_tools.scene.asset import write_tree_asset
+    from foliage_tools.scene.atomic import refuse_link_loop
+    from foliage_tools.scene.dependencies import require_file
     from foliage_tools.scene.meshfile import read_parts
 
     progress = progress or Silent()
     report: Report[ImportStats] = Report(command="import", inputs=[str(path)])
     path, out = Path(path), Path(out)
+    require_file(path, "Give the mesh file to import.")  # a loop, FIFO or device named for what it is, never opened
+    refuse_link_loop(out)
     if out.resolve() == path.resolve():
         raise UsageError(f"@{out}@ is the input file; choose another output (inputs are never modified).")
     progress.step(f"reading {path}")

@@ -17,3 +17,13 @@ def test_import_names_a_fifo_a_device_and_a_missing_file_for_what_they_are(tmp_p
         r = foliage("import", source, "-o", tmp_path / "t.usda", "--json")
         assert r.returncode == 2 and says in r.stderr, (source, r.stderr)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe.obj"]
+
+
+def test_import_refuses_symbolic_link_loops_as_model_and_as_output(tmp_path):
+    os.symlink(tmp_path / "b", tmp_path / "a")
+    os.symlink(tmp_path / "a", tmp_path / "b")
+    model = tmp_path / "leaf.obj"
+    model.write_text("o leaves\nv 0 0 1\nv 1 0 1\nv 1 1 1\nf 1 2 3\n")
+    for args in (("import", tmp_path / "a", "-o", tmp_path / "t.usda"), ("import", model, "-o", tmp_path / "a")):
+        r = foliage(*args, "--json")
+        assert r.returncode == 2 and "is a symbolic link that loops" in r.stderr, (args, r.stderr)
