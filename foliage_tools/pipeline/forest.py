@@ -42,6 +42,7 @@ divided out (``_calibration``).
 from __future__ import annotations
 
 import logging
+import math
 import hashlib
 import time
 from dataclasses import dataclass
@@ -228,7 +229,7 @@ def stand_grid(scene: Scene) -> GridSpec:
     if np.prod(np.ceil(span / voxel) + 1) > MAX_NODES:
         voxel = float((np.prod(span) / MAX_NODES) ** (1 / 3))
     grid = _grid_over(corners, voxel)
-    while np.prod(grid.shape) > MAX_NODES:  # a flat stand: its few vertical cells and margins round up
+    while math.prod(grid.shape) > MAX_NODES:  # a flat stand: its few vertical cells and margins round up (Python ints: np.prod overflowed to < 0)
         voxel *= 1.05
         grid = _grid_over(corners, voxel)
     return grid

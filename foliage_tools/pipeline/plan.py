@@ -10,11 +10,11 @@ machine compares; the memory figures do not depend on the machine.
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
 from foliage_tools.errors import UsageError
 from foliage_tools.lighting.envelope import AUTO_FAST_THRESHOLD
@@ -161,7 +161,7 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         if not n:
             continue
         grid = density_grid(proto, DensityParams(resolution=params.resolution))
-        nodes = int(np.prod(grid.shape))
+        nodes = math.prod(grid.shape)
         rhs = 3 * (18 if params.bases == "all" else 1)
         sweeps = LB_SWEEPS_FP16_BASES if params.bases == "all" and params.storage == "fp16" else LB_SWEEPS
         lb_s = (LB_PLAIN_SWEEP_EQUIVALENTS * nodes * rhs / (LB_MLUPS_MANY if rhs >= 19 else LB_MLUPS_FEW)
@@ -217,7 +217,7 @@ def plan(path: Path, params: PlanParams) -> Report[PlanStats]:
         if len(scene.instances) <= EQ31_MAX_INSTANCES:
             total_s["spp"] += len(scene.instances) * (len(scene.instances) - 1) * SPP_EQ31_S_PER_PAIR
         shape = forest_mod.stand_grid(scene).shape
-        nodes = int(np.prod(shape))
+        nodes = math.prod(int(n) for n in shape)
         # the stand's sun solve (3 right-hand sides) with its beam arrays and exact first order, as a tree's
         forest_bytes = solve_bytes(shape, 3, storage="fp32", relightable=False, first_collision=True, corrected=True,
                                    beam_bases=False)

@@ -445,6 +445,28 @@ def grid_scale_problem(prototype: str, bounds: np.ndarray, path: str) -> Problem
     )
 
 
+#: A placed leaf must span at least this many single-precision steps of its world coordinates: the ray scene
+#: (Embree) holds the world's triangles in float32, whose step at a distance D from the origin is D * 2**-23, so
+#: far from the origin a leaf collapses (an instance at 1e25 had all its points on one float32 value, and its
+#: light was baked from that, with exit 0).
+LEAF_FLOAT32_STEPS = 10
+
+
+def placement_precision_problem(instance: str, leaf_size: float, reach: float, path: str) -> Problem | None:
+    """An instance placed so far from the origin (``reach``: the largest world coordinate of its leaves' box) that
+    single-precision coordinates cannot resolve its leaves (``leaf_size``: a typical leaf's width, world units)."""
+    step = reach * 2.0**-23
+    if not (leaf_size > 0) or step * LEAF_FLOAT32_STEPS <= leaf_size:
+        return None
+    return Problem(
+        "geometry-scale",
+        f"@{path}@: <{instance}> stands {reach:.3g} units from the origin, where the ray tracer's single-precision "
+        f"coordinates are {step:.3g} apart, too coarse for its leaves of about {leaf_size:.3g}: move the stand nearer "
+        f"the origin (within {leaf_size / LEAF_FLOAT32_STEPS * 2.0**23:.3g} units), e.g. by translating its root prim.",
+        instance,
+    )
+
+
 #: The attributes a bake reads, by the schema of the prim holding them: a value of a type USD does not know
 #: (``point9f[] points``) reads back as an UnregisteredValue, which has no length, no numbers.
 READ_ATTRIBUTES = {

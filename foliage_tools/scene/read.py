@@ -463,8 +463,30 @@ def read_stage(stage: Usd.Stage, path: str) -> tuple[Scene, list[str]]:
             reader.warnings.append(
                 f"{path}: prototype <{proto.path}> has {proto.degenerate_triangles} degenerate (zero-area) leaf triangle(s); they were ignored."
             )
+    _refuse([_placement_problem(scene, path)])
     reader.warnings += sideways_warnings(scene, path)
     return scene, reader.warnings
+
+
+def _placement_problem(scene: Scene, path: str) -> bakeable.Problem | None:
+    """The first instance too far from the origin for single precision to hold its leaves
+    (:func:`bakeable.placement_precision_problem`)."""
+    if not scene.instances:
+        return None
+    size = [float(np.sqrt(np.median(p.leaves.areas))) if p.leaves.count else 0.0 for p in scene.prototypes]
+    boxes = [p.bounds(leaves_only=True) if p.leaves.count else None for p in scene.prototypes]
+    for inst in scene.instances:
+        box = boxes[inst.prototype]
+        if box is None:
+            continue
+        m = inst.transform
+        scale = abs(float(np.linalg.det(m[:3, :3]))) ** (1.0 / 3.0)
+        corners = np.array([[x, y, z] for x in box[:, 0] for y in box[:, 1] for z in box[:, 2]]) @ m[:3, :3].T + m[:3, 3]
+        problem = bakeable.placement_precision_problem(inst.path, size[inst.prototype] * scale,
+                                                       float(np.abs(corners).max()), path)
+        if problem is not None:
+            return problem
+    return None
 
 
 #: The start of :func:`sideways_warnings`' text (``validate`` reports it as its ``upright`` rule).
