@@ -323,8 +323,8 @@ def light_value_problem(prim: Usd.Prim, path: str) -> Problem | None:
         return None
     return Problem(
         "lights",
-        f"@{path}@: {kind} <{prim.GetPath()}> has {' and '.join(bad)}; light needs finite values >= 0. Fix the light, "
-        "or remove it (and pass --sun AZ,EL or --sky).",
+        f"@{path}@: {kind} <{prim.GetPath()}> has {' and '.join(bad)}; light needs finite values >= 0. Fix the light's "
+        "values, or remove the light (the bakes then take --sun AZ,EL, or a sun at 45,60).",
         str(prim.GetPath()),
     )
 
