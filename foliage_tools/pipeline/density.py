@@ -145,7 +145,7 @@ def _legacy_volume(path: Path, proto: Prototype) -> str | None:
     old = f"/FoliageBakes/{re.sub(r'[^A-Za-z0-9_]', '_', proto.name)}/FoliageLighting"
     if volume_fields(path, old, ("density",)) is None:
         return None
-    return (f"its volume is at <{old}>, where layers written before 2026-12-02 put it; bakes now place it over "
+    return (f"its volume is at <{old}>, where layers of earlier foliage-tools versions put it; bakes now place it over "
             "every instance from a class under the default prim")
 
 
